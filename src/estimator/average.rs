@@ -1,0 +1,236 @@
+//! Combination of accepted windows into one road-to-body pitch (eq. 17 and a robust variant).
+
+use super::config::Averaging;
+use serde::{Deserialize, Serialize};
+
+/// Fixed-capacity set of weighted window values for the current load, deg.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Averager {
+    mode: Averaging,
+    capacity: usize,
+    sigma_prior_deg: f64,
+    /// (value deg, weight) oldest first; a load-change prior has weight > 1.
+    entries: Vec<(f64, f64)>,
+    /// Windows accepted since the last load change (or reset).
+    accepted: u64,
+    #[serde(skip)]
+    scratch: Vec<f64>,
+}
+
+/// Combined estimate with its uncertainty.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Combined {
+    pub value_deg: f64,
+    /// Standard error of the combined value, deg.
+    pub std_err_deg: f64,
+    /// Effective number of windows behind the value (a load-change prior counts as its weight).
+    pub weight: f64,
+}
+
+impl Averager {
+    pub fn new(mode: Averaging, capacity: usize, sigma_prior_deg: f64) -> Self {
+        Self {
+            mode,
+            capacity,
+            sigma_prior_deg,
+            entries: Vec::with_capacity(capacity),
+            accepted: 0,
+            scratch: Vec::with_capacity(capacity),
+        }
+    }
+
+    pub fn mode(&self) -> Averaging {
+        self.mode
+    }
+
+    pub fn accepted(&self) -> u64 {
+        self.accepted
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// Add one window value, deg.
+    pub fn push(&mut self, value_deg: f64) {
+        self.push_weighted(value_deg, 1.0);
+        self.accepted = self.accepted.saturating_add(1);
+    }
+
+    fn push_weighted(&mut self, value_deg: f64, w: f64) {
+        if self.entries.len() == self.capacity {
+            self.entries.remove(0);
+        }
+        self.entries.push((value_deg, w));
+    }
+
+    /// Restart from a new load: the previous estimate shifted by `delta_deg` is kept as a
+    /// prior worth at most `prior_weight` windows; older windows are dropped.
+    pub fn restart_shifted(&mut self, delta_deg: f64, prior_weight: f64) {
+        let prior = self.combined();
+        self.entries.clear();
+        self.accepted = 0;
+        if let Some(c) = prior {
+            let w = c.weight.min(prior_weight);
+            if w > 0.0 {
+                self.push_weighted(c.value_deg + delta_deg, w);
+            }
+        }
+    }
+
+    /// Drop everything.
+    pub fn clear(&mut self) {
+        self.entries.clear();
+        self.accepted = 0;
+    }
+
+    /// Current combined value; `None` before any window.
+    pub fn combined(&mut self) -> Option<Combined> {
+        if self.entries.is_empty() {
+            return None;
+        }
+        let wsum: f64 = self.entries.iter().map(|e| e.1).sum();
+        let mean = self.entries.iter().map(|e| e.0 * e.1).sum::<f64>() / wsum;
+        let value = match self.mode {
+            Averaging::Mean => mean,
+            Averaging::Huber => self.huber(),
+        };
+        // Spread of single windows: pooled with a prior worth two windows so that a
+        // handful of agreeing windows does not claim an implausibly small error.
+        let ss: f64 = self
+            .entries
+            .iter()
+            .map(|e| e.1 * (e.0 - value).powi(2))
+            .sum();
+        let k0 = 2.0;
+        let dof = (wsum - 1.0).max(0.0);
+        let sigma = ((k0 * self.sigma_prior_deg.powi(2) + ss) / (k0 + dof)).sqrt();
+        Some(Combined {
+            value_deg: value,
+            std_err_deg: sigma / wsum.sqrt(),
+            weight: wsum,
+        })
+    }
+
+    /// Weighted Huber M-estimate of location with a MAD scale.
+    fn huber(&mut self) -> f64 {
+        let n = self.entries.len();
+        self.scratch.clear();
+        self.scratch.extend(self.entries.iter().map(|e| e.0));
+        let med = median(&mut self.scratch);
+        if n < 3 {
+            let wsum: f64 = self.entries.iter().map(|e| e.1).sum();
+            return self.entries.iter().map(|e| e.0 * e.1).sum::<f64>() / wsum;
+        }
+        self.scratch.clear();
+        self.scratch
+            .extend(self.entries.iter().map(|e| (e.0 - med).abs()));
+        // 1.4826 makes the MAD a standard deviation for normal data; the floor keeps
+        // identical windows from producing a zero scale.
+        let scale = (1.4826 * median(&mut self.scratch)).max(0.02);
+        let c = 1.5 * scale;
+        let mut mu = med;
+        for _ in 0..20 {
+            let (mut num, mut den) = (0.0, 0.0);
+            for &(x, w) in &self.entries {
+                let r = (x - mu).abs();
+                let hw = if r <= c { 1.0 } else { c / r };
+                num += w * hw * x;
+                den += w * hw;
+            }
+            let next = num / den;
+            if (next - mu).abs() < 1e-9 {
+                return next;
+            }
+            mu = next;
+        }
+        mu
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_unstable_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mean_mode_is_eq17_running_mean() {
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        let xs = [0.3, 0.5, 0.1, 0.9, -0.2];
+        let mut running = 0.0;
+        for (m, x) in xs.iter().enumerate() {
+            a.push(*x);
+            let m = (m + 1) as f64;
+            running = ((m - 1.0) * running + x) / m; // eq. 17
+            assert!((a.combined().unwrap().value_deg - running).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn huber_resists_an_outlier_that_moves_the_mean() {
+        let mut h = Averager::new(Averaging::Huber, 64, 0.2);
+        let mut m = Averager::new(Averaging::Mean, 64, 0.2);
+        for x in [1.02, 0.98, 1.01, 0.99, 1.00, 1.03, 0.97, 5.0] {
+            h.push(x);
+            m.push(x);
+        }
+        let (hv, mv) = (
+            h.combined().unwrap().value_deg,
+            m.combined().unwrap().value_deg,
+        );
+        assert!((mv - 1.0).abs() > 0.4, "the mean must be pulled: {mv}");
+        assert!((hv - 1.0).abs() < 0.05, "huber {hv}");
+    }
+
+    #[test]
+    fn std_err_shrinks_with_more_windows() {
+        let mut a = Averager::new(Averaging::Huber, 64, 0.2);
+        a.push(0.5);
+        let e1 = a.combined().unwrap().std_err_deg;
+        for x in [0.45, 0.55, 0.5, 0.52, 0.48, 0.51, 0.49] {
+            a.push(x);
+        }
+        let e8 = a.combined().unwrap().std_err_deg;
+        assert!(e8 < e1 / 2.0, "{e1} {e8}");
+    }
+
+    #[test]
+    fn restart_keeps_shifted_prior_with_capped_weight() {
+        let mut a = Averager::new(Averaging::Huber, 64, 0.2);
+        for _ in 0..10 {
+            a.push(0.5);
+        }
+        a.restart_shifted(1.0, 4.0);
+        let c = a.combined().unwrap();
+        assert!((c.value_deg - 1.5).abs() < 1e-12);
+        assert_eq!(c.weight, 4.0);
+        assert_eq!(a.accepted(), 0);
+    }
+
+    #[test]
+    fn capacity_drops_oldest() {
+        let mut a = Averager::new(Averaging::Mean, 3, 0.2);
+        for x in [10.0, 1.0, 1.0, 1.0] {
+            a.push(x);
+        }
+        assert!((a.combined().unwrap().value_deg - 1.0).abs() < 1e-12);
+    }
+}
+
+impl Averager {
+    /// Seed with a restored value worth `weight` windows (`accepted` of them under this load).
+    pub fn restore_prior(&mut self, value_deg: f64, weight: f64, accepted: u64) {
+        self.entries.clear();
+        self.push_weighted(value_deg, weight);
+        self.accepted = accepted;
+    }
+}

@@ -1,0 +1,174 @@
+//! Estimator parameters. Every field carries its unit in its name.
+
+use serde::{Deserialize, Serialize};
+
+/// How accepted windows are combined into the road-to-body estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Averaging {
+    /// The running mean of eq. 17 of Kim et al. (2023).
+    Mean,
+    /// Huber M-estimate with a MAD scale: windows far from the bulk get less weight.
+    Huber,
+}
+
+/// Tuning of the static leveling estimator.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EstimatorConfig {
+    /// Wheel speeds at or below this read as zero, km/h.
+    pub zero_speed_kmh: f64,
+    /// Wheels must read zero this long before a standstill is declared, s.
+    pub zero_speed_time_s: f64,
+    /// The IMU must also be still this long before a standstill is declared, s.
+    pub still_time_s: f64,
+    /// Length of the sliding window of the IMU stillness test, s.
+    pub still_window_s: f64,
+    /// Stillness: largest per-axis accelerometer standard deviation in the window, m/s^2.
+    pub still_acc_std_mps2: f64,
+    /// Stillness: largest mean bias-corrected gyro norm in the window, deg/s.
+    pub still_gyro_dps: f64,
+    /// Coefficient alpha of the gyro-bias low-pass filter of eq. 7, per IMU sample (0..1].
+    pub gyro_bias_alpha: f64,
+    /// Horizontal travel of one slope window, T_d of eq. 15, m.
+    pub window_distance_m: f64,
+    /// A window whose corrected trajectory leaves its end-to-end chord by more than this is rejected, m.
+    pub max_chord_deviation_m: f64,
+    /// Windows with a yaw rate above this are rejected as turning, deg/s.
+    pub max_yaw_rate_dps: f64,
+    /// Windows with a lateral acceleration above this are rejected as turning, m/s^2.
+    pub max_lateral_acc_mps2: f64,
+    /// A window that has not covered its distance after this long is abandoned, s.
+    pub max_window_time_s: f64,
+    /// A gap between IMU samples longer than this breaks a window, s.
+    pub max_imu_gap_s: f64,
+    /// Position of the IMU relative to the body pitch centre in body axes (x fwd, y left, z up), m.
+    /// Body pitch under acceleration swings the IMU about that centre; the window removes it.
+    pub lever_arm_m: [f64; 3],
+    /// IMU history kept for the deceleration window (integrated backwards from the stop), s.
+    pub history_s: f64,
+    /// A step in standstill IMU pitch above this is taken as a load change, deg.
+    pub load_change_deg: f64,
+    /// Length of the blocks in which the standstill pitch is compared for load changes, s.
+    pub load_block_s: f64,
+    /// After a load change, the shifted previous estimate counts as at most this many windows.
+    pub load_prior_windows: f64,
+    /// How windows are combined.
+    pub averaging: Averaging,
+    /// Number of most recent windows the average keeps.
+    pub average_capacity: usize,
+    /// Prior for the spread of single windows before enough have been seen, deg.
+    pub window_sigma_prior_deg: f64,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        Self {
+            zero_speed_kmh: 0.1,
+            zero_speed_time_s: 0.5,
+            still_time_s: 0.5,
+            still_window_s: 0.2,
+            still_acc_std_mps2: 0.15,
+            still_gyro_dps: 1.0,
+            gyro_bias_alpha: 0.01,
+            window_distance_m: 2.0,
+            max_chord_deviation_m: 0.012,
+            max_yaw_rate_dps: 3.0,
+            max_lateral_acc_mps2: 0.5,
+            max_window_time_s: 15.0,
+            max_imu_gap_s: 0.1,
+            lever_arm_m: [2.0, 0.0, 0.3],
+            history_s: 20.0,
+            load_change_deg: 0.2,
+            load_block_s: 0.5,
+            load_prior_windows: 4.0,
+            averaging: Averaging::Huber,
+            average_capacity: 64,
+            window_sigma_prior_deg: 0.2,
+        }
+    }
+}
+
+/// A parameter is out of its valid range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("estimator parameter `{field}` = {value} is invalid: {hint}")]
+pub struct ConfigError {
+    pub field: &'static str,
+    pub value: f64,
+    pub hint: &'static str,
+}
+
+impl EstimatorConfig {
+    /// Check every parameter; the error names the field and the valid range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let pos = |field: &'static str, value: f64| {
+            if value.is_finite() && value > 0.0 {
+                Ok(())
+            } else {
+                Err(ConfigError {
+                    field,
+                    value,
+                    hint: "set a finite value greater than 0",
+                })
+            }
+        };
+        let nonneg = |field: &'static str, value: f64| {
+            if value.is_finite() && value >= 0.0 {
+                Ok(())
+            } else {
+                Err(ConfigError {
+                    field,
+                    value,
+                    hint: "set a finite value of 0 or more",
+                })
+            }
+        };
+        nonneg("zero_speed_kmh", self.zero_speed_kmh)?;
+        nonneg("zero_speed_time_s", self.zero_speed_time_s)?;
+        pos("still_time_s", self.still_time_s)?;
+        pos("still_window_s", self.still_window_s)?;
+        pos("still_acc_std_mps2", self.still_acc_std_mps2)?;
+        pos("still_gyro_dps", self.still_gyro_dps)?;
+        if !(self.gyro_bias_alpha > 0.0 && self.gyro_bias_alpha <= 1.0) {
+            return Err(ConfigError {
+                field: "gyro_bias_alpha",
+                value: self.gyro_bias_alpha,
+                hint: "choose alpha in (0, 1]; 0.01 at 100 Hz is a 1 s time constant",
+            });
+        }
+        pos("window_distance_m", self.window_distance_m)?;
+        pos("max_chord_deviation_m", self.max_chord_deviation_m)?;
+        pos("max_yaw_rate_dps", self.max_yaw_rate_dps)?;
+        pos("max_lateral_acc_mps2", self.max_lateral_acc_mps2)?;
+        pos("max_window_time_s", self.max_window_time_s)?;
+        pos("max_imu_gap_s", self.max_imu_gap_s)?;
+        for (i, v) in self.lever_arm_m.iter().enumerate() {
+            if !v.is_finite() || v.abs() > 10.0 {
+                return Err(ConfigError {
+                    field: ["lever_arm_m[0]", "lever_arm_m[1]", "lever_arm_m[2]"][i],
+                    value: *v,
+                    hint: "give the IMU offset from the pitch centre in metres, within +-10 m",
+                });
+            }
+        }
+        if !(self.history_s.is_finite() && (2.0..=120.0).contains(&self.history_s)) {
+            return Err(ConfigError {
+                field: "history_s",
+                value: self.history_s,
+                hint: "keep between 2 and 120 s of IMU history",
+            });
+        }
+        pos("load_change_deg", self.load_change_deg)?;
+        pos("load_block_s", self.load_block_s)?;
+        nonneg("load_prior_windows", self.load_prior_windows)?;
+        if self.average_capacity < 2 || self.average_capacity > 4096 {
+            return Err(ConfigError {
+                field: "average_capacity",
+                value: self.average_capacity as f64,
+                hint: "keep between 2 and 4096 windows",
+            });
+        }
+        pos("window_sigma_prior_deg", self.window_sigma_prior_deg)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,410 @@
+//! Dead reckoning over one slope window (eq. 12-13) and the road slope (eq. 14-15).
+//!
+//! The integrator is fed IMU samples in the order it should walk through them:
+//! forward in time after a stop, backward in time before a stop. Each step uses
+//! the mean of the two samples it spans (the constant-acceleration model of eq. 12
+//! with a trapezoidal acceleration), which makes forward and backward walks exact
+//! inverses of one another.
+
+use super::attitude::propagate;
+use super::types::ImuSample;
+use nalgebra::{UnitQuaternion, Vector3};
+
+/// Why a window was not used.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum RejectReason {
+    /// The trajectory leaves its end-to-end chord: the slope changes inside the window (Fig. 11).
+    SlopeNotConstant { chord_deviation_m: f64 },
+    /// Yaw rate or lateral acceleration show a turn.
+    Turning {
+        yaw_rate_dps: f64,
+        lateral_acc_mps2: f64,
+    },
+    /// The history or the drive ended before the window distance was covered.
+    TooShort { distance_m: f64 },
+    /// The window distance was not covered within `max_window_time_s`.
+    TooSlow { duration_s: f64 },
+    /// IMU samples are missing inside the window.
+    ImuGap { gap_s: f64 },
+    /// The vehicle was not still where the window must start.
+    NotStill,
+}
+
+/// Fixed inputs of one window.
+#[derive(Debug, Clone, Copy)]
+pub struct WindowSetup {
+    /// Attitude at the start of the walk (from standstill gravity, eq. 9).
+    pub q0: UnitQuaternion<f64>,
+    /// Gyro bias to remove, rad/s (eq. 8).
+    pub gyro_bias_rps: Vector3<f64>,
+    /// Magnitude of the standstill specific force, used as g of eq. 12, m/s^2.
+    pub gravity_mps2: f64,
+    /// IMU offset from the body pitch centre, body axes, m.
+    pub lever_arm_m: Vector3<f64>,
+    pub distance_m: f64,
+    pub max_time_s: f64,
+    pub max_gap_s: f64,
+    pub max_yaw_rate_rps: f64,
+    pub max_lateral_acc_mps2: f64,
+    pub max_chord_deviation_m: f64,
+}
+
+/// Geometry of a completed window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowGeometry {
+    /// Road slope along body x, rad, positive rising ahead (eq. 14).
+    pub slope_rad: f64,
+    /// Horizontal path length (eq. 15), m.
+    pub distance_m: f64,
+    pub duration_s: f64,
+    pub chord_deviation_m: f64,
+    pub max_yaw_rate_rps: f64,
+    pub max_lateral_acc_mps2: f64,
+}
+
+/// Outcome of feeding a sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Step {
+    Continue,
+    Done(Result<WindowGeometry, RejectReason>),
+}
+
+/// Walks a window. Preallocates its trajectory once; stepping never allocates.
+#[derive(Debug, Clone)]
+pub struct WindowIntegrator {
+    setup: WindowSetup,
+    q: UnitQuaternion<f64>,
+    v: Vector3<f64>,
+    p: Vector3<f64>,
+    lever0: Vector3<f64>,
+    prev: Option<ImuSample>,
+    t_start_s: f64,
+    horizontal_m: f64,
+    last_corrected: Vector3<f64>,
+    max_yaw: f64,
+    max_lat: f64,
+    /// (horizontal path length, corrected height) per step.
+    track: Vec<(f64, f64)>,
+    active: bool,
+}
+
+impl WindowIntegrator {
+    /// `max_points` bounds the stored trajectory (the window is rejected as too slow past it).
+    pub fn with_capacity(max_points: usize) -> Self {
+        Self {
+            setup: WindowSetup {
+                q0: UnitQuaternion::identity(),
+                gyro_bias_rps: Vector3::zeros(),
+                gravity_mps2: 9.80665,
+                lever_arm_m: Vector3::zeros(),
+                distance_m: 2.0,
+                max_time_s: 10.0,
+                max_gap_s: 0.1,
+                max_yaw_rate_rps: 0.05,
+                max_lateral_acc_mps2: 0.5,
+                max_chord_deviation_m: 0.01,
+            },
+            q: UnitQuaternion::identity(),
+            v: Vector3::zeros(),
+            p: Vector3::zeros(),
+            lever0: Vector3::zeros(),
+            prev: None,
+            t_start_s: 0.0,
+            horizontal_m: 0.0,
+            last_corrected: Vector3::zeros(),
+            max_yaw: 0.0,
+            max_lat: 0.0,
+            track: Vec::with_capacity(max_points.max(2)),
+            active: false,
+        }
+    }
+
+    /// Start a new walk at rest (velocity zero) with the given setup.
+    pub fn start(&mut self, setup: WindowSetup) {
+        self.setup = setup;
+        self.q = setup.q0;
+        self.v = Vector3::zeros();
+        self.p = Vector3::zeros();
+        self.lever0 = setup.q0 * setup.lever_arm_m;
+        self.prev = None;
+        self.horizontal_m = 0.0;
+        self.last_corrected = Vector3::zeros();
+        self.max_yaw = 0.0;
+        self.max_lat = 0.0;
+        self.track.clear();
+        self.track.push((0.0, 0.0));
+        self.active = true;
+    }
+
+    pub fn is_active(&self) -> bool {
+        self.active
+    }
+
+    pub fn cancel(&mut self) {
+        self.active = false;
+    }
+
+    /// Distance covered so far, m.
+    pub fn distance_m(&self) -> f64 {
+        self.horizontal_m
+    }
+
+    /// Feed the next sample of the walk (later in time going forward, earlier going backward).
+    pub fn push(&mut self, s: &ImuSample) -> Step {
+        if !self.active {
+            return Step::Continue;
+        }
+        let Some(prev) = self.prev.replace(*s) else {
+            self.t_start_s = s.t_s;
+            return Step::Continue;
+        };
+        let dt = s.t_s - prev.t_s;
+        if dt.abs() > self.setup.max_gap_s {
+            return self.finish_with(Err(RejectReason::ImuGap { gap_s: dt.abs() }));
+        }
+        let bias = self.setup.gyro_bias_rps;
+        let w0 = prev.gyro_rps() - bias;
+        let w1 = s.gyro_rps() - bias;
+        let g = Vector3::new(0.0, 0.0, self.setup.gravity_mps2);
+        let q0 = self.q;
+        let q1 = propagate(&q0, &((w0 + w1) * 0.5), dt);
+        let a0 = q0 * prev.acc() - g;
+        let a1 = q1 * s.acc() - g;
+        // Eq. 12-13 with the acceleration varying linearly across the step.
+        self.p += self.v * dt + (a0 * 2.0 + a1) * (dt * dt / 6.0);
+        self.v += (a0 + a1) * (dt * 0.5);
+        self.q = q1;
+
+        let yaw = (q1 * w1).z.abs();
+        let lat = a1.dot(&(q1 * Vector3::y())).abs();
+        self.max_yaw = self.max_yaw.max(yaw);
+        self.max_lat = self.max_lat.max(lat);
+
+        // Remove the swing of the IMU about the pitch centre: what is left moves with the road.
+        let corrected = self.p - (q1 * self.setup.lever_arm_m - self.lever0);
+        let d = corrected - self.last_corrected;
+        self.horizontal_m += d.x.hypot(d.y);
+        self.last_corrected = corrected;
+        if self.track.len() == self.track.capacity() {
+            let duration_s = (s.t_s - self.t_start_s).abs();
+            return self.finish_with(Err(RejectReason::TooSlow { duration_s }));
+        }
+        self.track.push((self.horizontal_m, corrected.z));
+
+        let duration_s = (s.t_s - self.t_start_s).abs();
+        if self.horizontal_m >= self.setup.distance_m {
+            let r = self.evaluate(corrected, duration_s);
+            return self.finish_with(r);
+        }
+        if duration_s > self.setup.max_time_s {
+            return self.finish_with(Err(RejectReason::TooSlow { duration_s }));
+        }
+        Step::Continue
+    }
+
+    /// End the walk because no more samples exist (history exhausted or the drive stopped).
+    pub fn exhausted(&mut self) -> Step {
+        if !self.active {
+            return Step::Continue;
+        }
+        let distance_m = self.horizontal_m;
+        self.finish_with(Err(RejectReason::TooShort { distance_m }))
+    }
+
+    fn finish_with(&mut self, r: Result<WindowGeometry, RejectReason>) -> Step {
+        self.active = false;
+        Step::Done(r)
+    }
+
+    fn evaluate(&self, end: Vector3<f64>, duration_s: f64) -> Result<WindowGeometry, RejectReason> {
+        let s = &self.setup;
+        if self.max_yaw > s.max_yaw_rate_rps || self.max_lat > s.max_lateral_acc_mps2 {
+            return Err(RejectReason::Turning {
+                yaw_rate_dps: self.max_yaw.to_degrees(),
+                lateral_acc_mps2: self.max_lat,
+            });
+        }
+        // Travel direction against the body heading at the start: +1 when the walk
+        // goes nose-first (forward drive, forward in time), -1 otherwise.
+        let heading = s.q0 * Vector3::x();
+        let along = end.x * heading.x + end.y * heading.y;
+        let sign = if along >= 0.0 { 1.0 } else { -1.0 };
+        let (len, height) = (self.horizontal_m, end.z);
+        let slope_rad = (sign * height).atan2(len);
+        // Largest distance of the trajectory from the chord joining its ends (Fig. 11).
+        let norm = len.hypot(height);
+        let dev = self
+            .track
+            .iter()
+            .map(|&(x, z)| (z * len - x * height).abs() / norm)
+            .fold(0.0, f64::max);
+        if dev > s.max_chord_deviation_m {
+            return Err(RejectReason::SlopeNotConstant {
+                chord_deviation_m: dev,
+            });
+        }
+        Ok(WindowGeometry {
+            slope_rad,
+            distance_m: len,
+            duration_s,
+            chord_deviation_m: dev,
+            max_yaw_rate_rps: self.max_yaw,
+            max_lateral_acc_mps2: self.max_lat,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::attitude::attitude_from_gravity;
+    use super::*;
+    const G: f64 = 9.80665;
+
+    fn setup(q0: UnitQuaternion<f64>) -> WindowSetup {
+        WindowSetup {
+            q0,
+            gyro_bias_rps: Vector3::zeros(),
+            gravity_mps2: G,
+            lever_arm_m: Vector3::zeros(),
+            distance_m: 2.0,
+            max_time_s: 10.0,
+            max_gap_s: 0.1,
+            max_yaw_rate_rps: 0.05,
+            max_lateral_acc_mps2: 0.5,
+            max_chord_deviation_m: 0.01,
+        }
+    }
+
+    /// Specific force of a rigid body pitched by `pitch` (road slope + mounting pitch)
+    /// accelerating at `a` along a road of slope `slope`.
+    fn specific_force(slope: f64, mount: f64, a: f64) -> Vector3<f64> {
+        // Navigation-frame acceleration plus gravity reaction, rotated into the body.
+        let acc_n = Vector3::new(a * slope.cos(), 0.0, a * slope.sin() + G);
+        let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -(slope + mount));
+        q.inverse() * acc_n
+    }
+
+    #[test]
+    fn constant_acceleration_on_known_slope() {
+        for &(slope_deg, mount_deg, a) in &[
+            (0.0, 0.0, 2.0),
+            (5.71, 0.0, 1.0),
+            (-2.86, 1.0, 3.0),
+            (8.0, -0.5, 2.0),
+        ] {
+            let (slope, mount) = (f64::to_radians(slope_deg), f64::to_radians(mount_deg));
+            let q0 = attitude_from_gravity(&specific_force(slope, mount, 0.0)).unwrap();
+            let mut w = WindowIntegrator::with_capacity(2000);
+            w.start(setup(q0));
+            let mut out = None;
+            for k in 0..1000 {
+                let t = k as f64 * 0.01;
+                let s = ImuSample::new(t, specific_force(slope, mount, a).into(), [0.0; 3]);
+                if let Step::Done(r) = w.push(&s) {
+                    out = Some(r);
+                    break;
+                }
+            }
+            let g = out
+                .expect("window must complete")
+                .expect("window must be accepted");
+            assert!(
+                (g.slope_rad - slope).abs() < 1e-9,
+                "slope {} vs {}",
+                g.slope_rad,
+                slope
+            );
+            // 2 m along the road from rest at a: t = sqrt(2 d / a), within one sample.
+            let t_expect = (2.0 * 2.0 / slope.cos() / a).sqrt();
+            assert!(
+                (g.duration_s - t_expect).abs() <= 0.011,
+                "{} vs {}",
+                g.duration_s,
+                t_expect
+            );
+        }
+    }
+
+    #[test]
+    fn backward_walk_of_deceleration_gives_same_slope() {
+        let slope = f64::to_radians(4.0);
+        let q0 = attitude_from_gravity(&specific_force(slope, 0.0, 0.0)).unwrap();
+        let mut w = WindowIntegrator::with_capacity(2000);
+        w.start(setup(q0));
+        // Braking at 2 m/s^2 into the stop: walking back in time from the stop the
+        // specific force carries the braking deceleration.
+        let mut res = None;
+        for k in 0..1000 {
+            let t = -(k as f64) * 0.01;
+            let s = ImuSample::new(t, specific_force(slope, 0.0, -2.0).into(), [0.0; 3]);
+            if let Step::Done(r) = w.push(&s) {
+                res = Some(r);
+                break;
+            }
+        }
+        let g = res.unwrap().unwrap();
+        assert!(
+            (g.slope_rad - slope).abs() < 1e-9,
+            "{}",
+            g.slope_rad.to_degrees()
+        );
+    }
+
+    #[test]
+    fn slope_change_inside_window_is_rejected() {
+        // Level for 0.8 m, a vertical curve up to 6 % by 1.2 m, then 6 %: the chord test must see it.
+        let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
+        let mut w = WindowIntegrator::with_capacity(4000);
+        w.start(setup(q0));
+        let (a, top) = (1.0, 0.06f64.atan());
+        let grade = |s: f64| {
+            (
+                top * ((s - 0.8) / 0.4).clamp(0.0, 1.0),
+                if (0.8..1.2).contains(&s) {
+                    top / 0.4
+                } else {
+                    0.0
+                },
+            )
+        };
+        let mut res = None;
+        for k in 0..2000 {
+            let t = k as f64 * 0.01;
+            let (s, v) = (0.5 * a * t * t, a * t);
+            let (gam, dgam_ds) = grade(s);
+            // Tangential plus centripetal acceleration along the vertical curve.
+            let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
+            let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
+            let acc_n = tan * a + nrm * (v * v * dgam_ds) + Vector3::new(0.0, 0.0, G);
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -gam);
+            let rate_dps = [0.0, -(dgam_ds * v).to_degrees(), 0.0];
+            if let Step::Done(r) =
+                w.push(&ImuSample::new(t, (q.inverse() * acc_n).into(), rate_dps))
+            {
+                res = Some(r);
+                break;
+            }
+        }
+        match res.unwrap() {
+            Err(RejectReason::SlopeNotConstant { chord_deviation_m }) => {
+                assert!(chord_deviation_m > 0.015, "{chord_deviation_m}")
+            }
+            other => panic!("expected rejection, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn gap_breaks_window() {
+        let mut w = WindowIntegrator::with_capacity(100);
+        w.start(setup(UnitQuaternion::identity()));
+        assert_eq!(
+            w.push(&ImuSample::new(0.0, [0.0, 0.0, G], [0.0; 3])),
+            Step::Continue
+        );
+        assert!(matches!(
+            w.push(&ImuSample::new(0.5, [0.0, 0.0, G], [0.0; 3])),
+            Step::Done(Err(RejectReason::ImuGap { .. }))
+        ));
+    }
+}

@@ -1,0 +1,7 @@
+//! leveld: automatic static headlamp leveling from wheel speeds and a 6-axis IMU.
+//!
+//! - [`estimator`]: the sans-IO estimator (Kim et al., IEEE Access 2023).
+//! - [`sim`]: a vehicle and IMU simulator with ground truth.
+
+pub mod estimator;
+pub mod sim;
