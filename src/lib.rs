@@ -3,5 +3,7 @@
 //! - [`estimator`]: the sans-IO estimator (Kim et al., IEEE Access 2023).
 //! - [`sim`]: a vehicle and IMU simulator with ground truth.
 
+pub mod cli;
 pub mod estimator;
+pub mod report;
 pub mod sim;

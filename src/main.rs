@@ -1,3 +1,12 @@
+use clap::Parser;
+
 fn main() {
-    println!("Hello, world!");
+    let cli = leveld::cli::Cli::parse();
+    match leveld::cli::run(cli) {
+        Ok(code) => std::process::exit(code),
+        Err(e) => {
+            eprintln!("leveld: error: {e:#}");
+            std::process::exit(2);
+        }
+    }
 }

@@ -26,8 +26,20 @@ pub struct EstimatorConfig {
     pub still_window_s: f64,
     /// Stillness: largest per-axis accelerometer standard deviation in the window, m/s^2.
     pub still_acc_std_mps2: f64,
-    /// Stillness: largest mean bias-corrected gyro norm in the window, deg/s.
+    /// Stillness: largest norm of the window-mean gyro rate minus the bias, deg/s.
     pub still_gyro_dps: f64,
+    /// Stillness: largest per-axis gyro standard deviation in the window, deg/s.
+    pub still_gyro_std_dps: f64,
+    /// Settled: the window-mean rate is within this of the bias. Only settled samples
+    /// feed the bias filter (eq. 7) and the gravity reference, so body rocking after a
+    /// stop and slow rotations (loading, doors) leak into neither, deg/s.
+    pub bias_gate_dps: f64,
+    /// Settled samples needed before the deceleration window is evaluated, s.
+    pub settle_time_s: f64,
+    /// A window walk starts where the 5-sample mean specific force last matched the
+    /// standstill mean within this, per axis, m/s^2. Constant braking has no variance,
+    /// so this, not the stillness test, finds the moment the car came to rest.
+    pub rest_acc_tol_mps2: f64,
     /// Coefficient alpha of the gyro-bias low-pass filter of eq. 7, per IMU sample (0..1].
     pub gyro_bias_alpha: f64,
     /// Horizontal travel of one slope window, T_d of eq. 15, m.
@@ -70,6 +82,10 @@ impl Default for EstimatorConfig {
             still_window_s: 0.2,
             still_acc_std_mps2: 0.15,
             still_gyro_dps: 1.0,
+            still_gyro_std_dps: 0.5,
+            bias_gate_dps: 0.1,
+            rest_acc_tol_mps2: 0.1,
+            settle_time_s: 3.0,
             gyro_bias_alpha: 0.01,
             window_distance_m: 2.0,
             max_chord_deviation_m: 0.012,
@@ -78,7 +94,7 @@ impl Default for EstimatorConfig {
             max_window_time_s: 15.0,
             max_imu_gap_s: 0.1,
             lever_arm_m: [2.0, 0.0, 0.3],
-            history_s: 20.0,
+            history_s: 30.0,
             load_change_deg: 0.2,
             load_block_s: 0.5,
             load_prior_windows: 4.0,
@@ -129,6 +145,17 @@ impl EstimatorConfig {
         pos("still_window_s", self.still_window_s)?;
         pos("still_acc_std_mps2", self.still_acc_std_mps2)?;
         pos("still_gyro_dps", self.still_gyro_dps)?;
+        pos("still_gyro_std_dps", self.still_gyro_std_dps)?;
+        pos("bias_gate_dps", self.bias_gate_dps)?;
+        pos("rest_acc_tol_mps2", self.rest_acc_tol_mps2)?;
+        pos("settle_time_s", self.settle_time_s)?;
+        if self.history_s < self.max_window_time_s + 2.0 {
+            return Err(ConfigError {
+                field: "history_s",
+                value: self.history_s,
+                hint: "keep at least max_window_time_s + 2 s of history for the deceleration window",
+            });
+        }
         if !(self.gyro_bias_alpha > 0.0 && self.gyro_bias_alpha <= 1.0) {
             return Err(ConfigError {
                 field: "gyro_bias_alpha",

@@ -118,6 +118,9 @@ pub struct EstimatorState {
     /// Standstill IMU pitch of the current load, deg: the load baseline.
     pub baseline_pitch_deg: Option<f64>,
     pub last_road_slope_deg: Option<f64>,
+    /// Settled specific-force magnitude, m/s^2.
+    #[serde(default)]
+    pub gravity_mps2: Option<f64>,
 }
 
 impl EstimatorState {
@@ -137,20 +140,34 @@ pub enum StateError {
 
 #[derive(Debug, Clone, Copy)]
 struct Standstill {
-    t_start_s: f64,
-    /// Specific force sums of the current load segment.
+    /// Where the car came to rest (start of the deceleration walk).
+    t_rest_s: f64,
+    /// Specific-force sums of the settled samples of the current load segment.
     seg_sum: Vector3<f64>,
     seg_n: u64,
+    seg_first_s: f64,
+    seg_last_s: f64,
     block_sum: Vector3<f64>,
     block_n: u64,
     block_t0_s: f64,
     /// A block that differed from the segment, waiting for a second one to confirm.
     pending: Option<(Vector3<f64>, u64)>,
+    /// The car drove since the previous standstill.
+    moved: bool,
+    /// The settled reference exists and the baseline and deceleration window were handled.
+    settled_done: bool,
 }
 
 impl Standstill {
     fn mean(&self) -> Vector3<f64> {
         self.seg_sum / self.seg_n.max(1) as f64
+    }
+    fn settled_s(&self) -> f64 {
+        if self.seg_n == 0 {
+            0.0
+        } else {
+            self.seg_last_s - self.seg_first_s
+        }
     }
 }
 
@@ -172,6 +189,13 @@ pub struct Estimator {
     travelled_m: f64,
     standstill: Option<Standstill>,
     bias_rps: Option<Vector3<f64>>,
+    /// Running mean of the settled specific-force magnitude: the g of eq. 12-13, m/s^2.
+    /// Measured rather than nominal so that an accelerometer bias along z cancels.
+    gravity: Option<(f64, f64)>,
+    /// Settled samples waiting one stillness window before they join the reference.
+    pending: std::collections::VecDeque<ImuSample>,
+    /// The last stillness window was close enough to the bias to update it.
+    bias_window_ok: bool,
     fwd: WindowIntegrator,
     fwd_ctx: Option<ForwardCtx>,
     bwd: WindowIntegrator,
@@ -197,6 +221,11 @@ impl Estimator {
             travelled_m: 0.0,
             standstill: None,
             bias_rps: None,
+            bias_window_ok: false,
+            pending: std::collections::VecDeque::with_capacity(
+                (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
+            ),
+            gravity: None,
             fwd: WindowIntegrator::with_capacity(win_cap),
             fwd_ctx: None,
             bwd: WindowIntegrator::with_capacity(win_cap),
@@ -243,6 +272,7 @@ impl Estimator {
             gyro_bias_dps: self.gyro_bias_dps(),
             baseline_pitch_deg: self.baseline_pitch_rad.map(f64::to_degrees),
             last_road_slope_deg: self.last_road_slope_deg(),
+            gravity_mps2: self.gravity.map(|g| g.0),
         }
     }
 
@@ -285,7 +315,14 @@ impl Estimator {
             .gyro_bias_dps
             .map(|b| Vector3::from(b).map(f64::to_radians));
         self.baseline_pitch_rad = st.baseline_pitch_deg.map(f64::to_radians);
+        if let Some(g) = st.gravity_mps2 {
+            if !(g.is_finite() && (5.0..15.0).contains(&g)) {
+                return Err(StateError::Implausible("gravity_mps2"));
+            }
+        }
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
+        // A restored magnitude counts as a few seconds of evidence; new stops refine it.
+        self.gravity = st.gravity_mps2.map(|g| (g, 500.0));
         self.refresh_estimate();
         Ok(())
     }
@@ -316,6 +353,16 @@ impl Estimator {
             self.wheels_zero_since = None;
         }
         self.wheels = Some(w);
+    }
+
+    /// End of input (end of a log, shutdown): evaluate what is still waiting, such as
+    /// the deceleration window of a stop that has not settled for `settle_time_s` yet.
+    pub fn finish(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
+        if let Some(st) = self.standstill {
+            if !st.settled_done && st.seg_n >= 5 {
+                self.on_settled(t_s, emit);
+            }
+        }
     }
 
     /// Forget the wheel speeds (input lost): no standstill is declared until they return.
@@ -381,33 +428,69 @@ impl Estimator {
         }
     }
 
-    /// IMU stillness over the trailing `still_window_s`.
-    fn imu_still(&self, t_now: f64) -> bool {
+    /// IMU stillness over the trailing `still_window_s`. Also records whether the
+    /// window may feed the bias filter.
+    fn imu_still(&mut self, t_now: f64) -> bool {
         let n = self.hist.len();
-        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
-        let (mut k, mut sum, mut sq, mut gyro) = (0usize, Vector3::zeros(), Vector3::zeros(), 0.0);
-        let mut oldest = t_now;
+        let (mut k, mut oldest) = (0usize, t_now);
+        let (mut sa, mut qa, mut sg, mut qg) = (
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::zeros(),
+        );
         for i in (0..n).rev() {
             let x = self.hist.get(i);
             if t_now - x.t_s > self.cfg.still_window_s {
                 break;
             }
-            let a = x.acc();
-            sum += a;
-            sq += a.component_mul(&a);
-            gyro += (x.gyro_rps() - bias).norm();
+            let (a, w) = (x.acc(), x.gyro_rps());
+            sa += a;
+            qa += a.component_mul(&a);
+            sg += w;
+            qg += w.component_mul(&w);
             oldest = x.t_s;
             k += 1;
         }
+        self.bias_window_ok = false;
         if k < 5 || t_now - oldest < 0.75 * self.cfg.still_window_s {
             return false;
         }
         let kf = k as f64;
-        let mean = sum / kf;
-        let var = sq / kf - mean.component_mul(&mean);
-        let std_max = var.map(|v| v.max(0.0).sqrt()).max();
-        std_max <= self.cfg.still_acc_std_mps2
-            && (gyro / kf).to_degrees() <= self.cfg.still_gyro_dps
+        let std_max = |s: Vector3<f64>, q: Vector3<f64>| {
+            let m = s / kf;
+            (q / kf - m.component_mul(&m))
+                .map(|v| v.max(0.0).sqrt())
+                .max()
+        };
+        let acc_ok = std_max(sa, qa) <= self.cfg.still_acc_std_mps2;
+        let gyro_ok = std_max(sg, qg).to_degrees() <= self.cfg.still_gyro_std_dps;
+        let offset_dps = self.bias_rps.map(|b| (sg / kf - b).norm().to_degrees());
+        let mean_ok = offset_dps.is_none_or(|o| o <= self.cfg.still_gyro_dps);
+        self.bias_window_ok = offset_dps.is_none_or(|o| o <= self.cfg.bias_gate_dps);
+        acc_ok && gyro_ok && mean_ok
+    }
+
+    /// Walking back from the newest sample, the index of the earliest sample of the
+    /// trailing run whose 5-sample mean specific force matches `f_rest` (not before `floor`).
+    fn rest_edge(&self, f_rest: &Vector3<f64>, floor: usize) -> usize {
+        const AVG: usize = 5;
+        let n = self.hist.len();
+        let tol = self.cfg.rest_acc_tol_mps2;
+        let mut edge = n - 1;
+        let mut i = n;
+        while i >= floor + AVG {
+            let mut m = Vector3::zeros();
+            for j in i - AVG..i {
+                m += self.hist.get(j).acc();
+            }
+            if ((m / AVG as f64) - f_rest).amax() > tol {
+                break;
+            }
+            edge = i - AVG;
+            i -= 1;
+        }
+        edge
     }
 
     fn update_bias(&mut self, s: &ImuSample) {
@@ -420,89 +503,156 @@ impl Estimator {
         });
     }
 
-    fn begin_standstill(&mut self, q0_t: f64, t_now: f64, emit: &mut dyn FnMut(Event)) {
-        // Everything since the quiet run began is standstill: average it.
-        let mut sum = Vector3::zeros();
-        let mut n = 0u64;
-        let mut first_idx = None;
-        for i in 0..self.hist.len() {
-            let x = self.hist.get(i);
-            if x.t_s >= q0_t {
-                first_idx.get_or_insert(i);
-                sum += x.acc();
-                n += 1;
-                self.update_bias(&x);
+    /// Index of the first history sample at or after `t`.
+    fn index_at(&self, t: f64) -> usize {
+        let (mut lo, mut hi) = (0, self.hist.len());
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if self.hist.get(mid).t_s < t {
+                lo = mid + 1
+            } else {
+                hi = mid
             }
         }
-        let Some(first_idx) = first_idx else { return };
-        let st = Standstill {
-            t_start_s: q0_t,
-            seg_sum: sum,
-            seg_n: n,
+        lo
+    }
+
+    /// Carry an attitude along the history from sample `from` to sample `to` with the
+    /// bias-corrected gyro (eq. 10-11), in either direction.
+    fn carry(&self, mut q: UnitQuaternion<f64>, from: usize, to: usize) -> UnitQuaternion<f64> {
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let step = |q: UnitQuaternion<f64>, i: usize, sign: f64| {
+            let (a, b) = (self.hist.get(i), self.hist.get(i + 1));
+            let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
+            attitude::propagate(&q, &w, sign * (b.t_s - a.t_s))
+        };
+        if from < to {
+            for i in from..to {
+                q = step(q, i, 1.0);
+            }
+        } else {
+            for i in (to..from).rev() {
+                q = step(q, i, -1.0);
+            }
+        }
+        q
+    }
+
+    fn begin_standstill(&mut self, q0_t: f64, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        let n = self.hist.len();
+        let first_quiet = self.index_at(q0_t).min(n - 1);
+        // Reference at rest: the most recent quarter second, surely stopped by now.
+        let mut f_rest = Vector3::zeros();
+        let mut w_mean = Vector3::zeros();
+        let mut k = 0;
+        for i in (first_quiet..n).rev() {
+            let x = self.hist.get(i);
+            if t_now - x.t_s > 0.25 && k >= 5 {
+                break;
+            }
+            f_rest += x.acc();
+            w_mean += x.gyro_rps();
+            k += 1;
+        }
+        f_rest /= k.max(1) as f64;
+        if self.bias_rps.is_none() {
+            // First standstill ever: start eq. 7 from the mean rate.
+            self.bias_rps = Some(w_mean / k.max(1) as f64);
+        }
+        // The car came to rest where the specific force settled; constant braking
+        // has no variance, so the stillness test alone would start too early.
+        let rest = self
+            .rest_edge(&f_rest, 0)
+            .max(first_quiet.saturating_sub(100))
+            .min(n - 1);
+        let moved = self.travelled_m > 0.5;
+        self.pending.clear();
+        self.standstill = Some(Standstill {
+            t_rest_s: self.hist.get(rest).t_s,
+            seg_sum: Vector3::zeros(),
+            seg_n: 0,
+            seg_first_s: t_now,
+            seg_last_s: t_now,
             block_sum: Vector3::zeros(),
             block_n: 0,
             block_t0_s: t_now,
             pending: None,
-        };
-        self.standstill = Some(st);
-        let g_mean = st.mean();
-        let Some(q0) = attitude_from_gravity(&g_mean) else {
-            return;
-        };
-        let pitch = pitch_of(&q0);
+            moved,
+            settled_done: false,
+        });
+        self.travelled_m = 0.0;
+        let pitch = pitch_from(&f_rest).unwrap_or(0.0);
         emit(Event::StandstillStarted {
             t_s: t_now,
             imu_pitch_deg: pitch.to_degrees(),
         });
-
         // The drive stopped before a forward window covered its distance.
         if self.fwd.is_active() {
             let step = self.fwd.exhausted();
             self.finish_forward(step, t_now, emit);
         }
+    }
 
-        // Parked or stopped without driving since the last baseline: a pitch step is a load change.
-        let moved = self.travelled_m > 0.5;
-        match self.baseline_pitch_rad {
-            Some(base) if !moved => {
-                let delta = pitch - base;
-                if delta.abs().to_degrees() > self.cfg.load_change_deg {
-                    self.apply_load_change(delta, pitch, t_now, emit);
-                }
-            }
-            _ => self.baseline_pitch_rad = Some(pitch),
-        }
+    /// Effective number of samples in the running gravity magnitude (60 s at 100 Hz).
+    const GRAVITY_SAMPLES: f64 = 6000.0;
 
-        // Deceleration condition: walk the history backwards from the first still sample.
-        if moved {
-            let setup = self.window_setup(q0, g_mean.norm());
-            self.bwd.start(setup);
-            let mut result = None;
-            for i in (0..=first_idx).rev() {
-                if let Step::Done(r) = self.bwd.push(&self.hist.get(i)) {
-                    result = Some(r);
-                    break;
-                }
-            }
-            let r = match result {
-                Some(r) => r,
-                None => match self.bwd.exhausted() {
-                    Step::Done(r) => r,
-                    Step::Continue => return,
-                },
-            };
-            self.report_window(r, Condition::DecelBeforeStop, pitch, q0_t, emit);
-        }
-        self.travelled_m = 0.0;
+    fn update_gravity(&mut self, f: &Vector3<f64>) {
+        let (g, n) = self.gravity.unwrap_or((f.norm(), 0.0));
+        let n = (n + 1.0).min(Self::GRAVITY_SAMPLES);
+        self.gravity = Some((g + (f.norm() - g) / n, n));
+    }
+
+    fn gravity_mps2(&self, fallback: f64) -> f64 {
+        self.gravity.map_or(fallback, |g| g.0)
     }
 
     fn update_standstill(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
+        if !self.bias_window_ok {
+            return;
+        }
+        // Samples join the reference only once a further stillness window has passed:
+        // the last ones before a drive-off are already moving.
+        if self.pending.len() == self.pending.capacity() {
+            self.pending.pop_front();
+        }
+        self.pending.push_back(*s);
+        let lag = 2.0 * self.cfg.still_window_s;
+        while let Some(x) = self.pending.front().copied() {
+            if s.t_s - x.t_s < lag {
+                break;
+            }
+            self.pending.pop_front();
+            self.commit_settled(&x, emit);
+        }
+    }
+
+    fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
         self.update_bias(s);
+        self.update_gravity(&s.acc());
         let block_s = self.cfg.load_block_s;
+        let settle_s = self.cfg.settle_time_s;
+        let deadline_s = self.cfg.history_s - self.cfg.max_window_time_s - 1.0;
         let thr = self.cfg.load_change_deg.to_radians();
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
+        let s = *s;
+        if st.seg_n == 0 {
+            st.seg_first_s = s.t_s;
+            st.block_t0_s = s.t_s;
+        }
+        if !st.settled_done {
+            st.seg_sum += s.acc();
+            st.seg_n += 1;
+            st.seg_last_s = s.t_s;
+            // Wait for a long gravity average, but not so long that the history loses
+            // the samples before the stop.
+            if st.settled_s() >= settle_s || s.t_s - st.t_rest_s >= deadline_s {
+                self.on_settled(s.t_s, emit);
+            }
+            return;
+        }
+        st.seg_last_s = s.t_s;
         st.block_sum += s.acc();
         st.block_n += 1;
         if s.t_s - st.block_t0_s < block_s {
@@ -538,6 +688,60 @@ impl Estimator {
         }
     }
 
+    /// The standstill has a settled gravity reference: check the load baseline and
+    /// evaluate the deceleration window.
+    fn on_settled(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        let Some(st) = self.standstill.as_mut() else {
+            return;
+        };
+        st.settled_done = true;
+        let st = *st;
+        let Some(q_ref) = attitude_from_gravity(&st.mean()) else {
+            return;
+        };
+        let pitch = pitch_of(&q_ref);
+        // Stopped or parked without driving since the last baseline: a pitch step is a load change.
+        match self.baseline_pitch_rad {
+            Some(base) if !st.moved => {
+                let delta = pitch - base;
+                if delta.abs().to_degrees() > self.cfg.load_change_deg {
+                    self.apply_load_change(delta, pitch, t_now, emit);
+                }
+            }
+            _ => self.baseline_pitch_rad = Some(pitch),
+        }
+        if !st.moved {
+            return;
+        }
+        // Deceleration condition: carry the settled attitude back to the rest edge, then
+        // walk the history backwards from there.
+        if self.hist.get(0).t_s > st.t_rest_s {
+            let r = Err(RejectReason::TooShort { distance_m: 0.0 });
+            self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
+            return;
+        }
+        let rest = self.index_at(st.t_rest_s);
+        let q0 = self.carry(q_ref, self.index_at(st.seg_first_s), rest);
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let setup = self.window_setup(q0, self.gravity_mps2(st.mean().norm()));
+        self.bwd.start(setup, self.hist.get(rest).gyro_rps() - bias);
+        let mut result = None;
+        for i in (0..=rest).rev() {
+            if let Step::Done(r) = self.bwd.push(&self.hist.get(i)) {
+                result = Some(r);
+                break;
+            }
+        }
+        let r = match result {
+            Some(r) => r,
+            None => match self.bwd.exhausted() {
+                Step::Done(r) => r,
+                Step::Continue => return,
+            },
+        };
+        self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
+    }
+
     fn apply_load_change(
         &mut self,
         delta_rad: f64,
@@ -557,33 +761,58 @@ impl Estimator {
     }
 
     fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
-        let Some(st) = self.standstill.take() else {
-            return;
-        };
+        let Some(st) = self.standstill else { return };
+        if !st.settled_done && st.seg_n >= 5 {
+            // A short stop: use what settled.
+            self.on_settled(t_now, emit);
+        }
+        self.standstill = None;
         emit(Event::StandstillEnded {
             t_s: t_now,
-            duration_s: t_now - st.t_start_s,
+            duration_s: t_now - st.t_rest_s,
         });
         self.travelled_m = 0.0;
-        let g_mean = st.mean();
-        let Some(q0) = attitude_from_gravity(&g_mean) else {
+        let q_ref = if st.seg_n >= 5 {
+            attitude_from_gravity(&st.mean())
+        } else {
+            None
+        };
+        let Some(q_ref) = q_ref else {
+            if st.moved {
+                let r = Err(RejectReason::NotStill);
+                self.report_window(r, Condition::DecelBeforeStop, 0.0, t_now, emit);
+            }
+            let r = Err(RejectReason::NotStill);
+            self.report_window(r, Condition::AccelAfterStop, 0.0, t_now, emit);
             return;
         };
-        // Start the walk where the IMU was certainly still: motion began inside the
-        // last stillness window, so go back two windows (still samples add nothing).
-        let t_start = (t_now - 2.0 * self.cfg.still_window_s).max(st.t_start_s);
-        let setup = self.window_setup(q0, g_mean.norm());
-        self.fwd.start(setup);
-        self.fwd_ctx = Some(ForwardCtx {
-            imu_pitch_rad: pitch_of(&q0),
-        });
-        // Catch up on the history up to (not including) the current sample; the
-        // caller pushes the current one.
+        // Start the walk at the last sample that still matched the standstill: from
+        // there the car moves. The current sample is pushed by the caller.
         let n = self.hist.len();
+        let floor = self.index_at(st.t_rest_s);
+        let g_mean = st.mean();
         let mut first = n - 1;
-        while first > 0 && self.hist.get(first - 1).t_s >= t_start {
-            first -= 1;
+        let mut i = n - 1;
+        while i >= floor + 5 {
+            let mut m = Vector3::zeros();
+            for j in i - 4..=i {
+                m += self.hist.get(j).acc();
+            }
+            if ((m / 5.0) - g_mean).amax() <= self.cfg.rest_acc_tol_mps2 {
+                first = i;
+                break;
+            }
+            i -= 1;
         }
+        let last_settled = self.index_at(st.seg_last_s).min(n - 1);
+        let q0 = self.carry(q_ref, last_settled, first);
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let setup = self.window_setup(q0, self.gravity_mps2(g_mean.norm()));
+        self.fwd
+            .start(setup, self.hist.get(first).gyro_rps() - bias);
+        self.fwd_ctx = Some(ForwardCtx {
+            imu_pitch_rad: pitch_of(&q_ref),
+        });
         for i in first..n - 1 {
             let step = self.fwd.push(&self.hist.get(i));
             if let Step::Done(_) = step {

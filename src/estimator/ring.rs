@@ -19,13 +19,6 @@ impl<T: Copy> Ring<T> {
     pub fn len(&self) -> usize {
         self.buf.len()
     }
-    pub fn is_empty(&self) -> bool {
-        self.buf.is_empty()
-    }
-    pub fn clear(&mut self) {
-        self.buf.clear();
-        self.head = 0;
-    }
     /// Append, overwriting the oldest element when full.
     pub fn push(&mut self, x: T) {
         if self.buf.len() < self.cap {
@@ -44,9 +37,6 @@ impl<T: Copy> Ring<T> {
             self.buf[(self.head + i) % self.cap]
         }
     }
-    pub fn last(&self) -> Option<T> {
-        (!self.buf.is_empty()).then(|| self.get(self.buf.len() - 1))
-    }
 }
 
 #[cfg(test)]
@@ -59,6 +49,5 @@ mod tests {
             r.push(i);
         }
         assert_eq!((r.get(0), r.get(1), r.get(2)), (2, 3, 4));
-        assert_eq!(r.last(), Some(4));
     }
 }

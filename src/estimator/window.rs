@@ -120,11 +120,13 @@ impl WindowIntegrator {
         }
     }
 
-    /// Start a new walk at rest (velocity zero) with the given setup.
-    pub fn start(&mut self, setup: WindowSetup) {
+    /// Start a new walk with the pitch centre at rest. `omega0_rps` is the body rate at
+    /// the start sample (bias removed): a body still rocking about the pitch centre
+    /// moves the IMU at omega x lever arm.
+    pub fn start(&mut self, setup: WindowSetup, omega0_rps: Vector3<f64>) {
         self.setup = setup;
         self.q = setup.q0;
-        self.v = Vector3::zeros();
+        self.v = setup.q0 * omega0_rps.cross(&setup.lever_arm_m);
         self.p = Vector3::zeros();
         self.lever0 = setup.q0 * setup.lever_arm_m;
         self.prev = None;
@@ -296,7 +298,7 @@ mod tests {
             let (slope, mount) = (f64::to_radians(slope_deg), f64::to_radians(mount_deg));
             let q0 = attitude_from_gravity(&specific_force(slope, mount, 0.0)).unwrap();
             let mut w = WindowIntegrator::with_capacity(2000);
-            w.start(setup(q0));
+            w.start(setup(q0), Vector3::zeros());
             let mut out = None;
             for k in 0..1000 {
                 let t = k as f64 * 0.01;
@@ -331,7 +333,7 @@ mod tests {
         let slope = f64::to_radians(4.0);
         let q0 = attitude_from_gravity(&specific_force(slope, 0.0, 0.0)).unwrap();
         let mut w = WindowIntegrator::with_capacity(2000);
-        w.start(setup(q0));
+        w.start(setup(q0), Vector3::zeros());
         // Braking at 2 m/s^2 into the stop: walking back in time from the stop the
         // specific force carries the braking deceleration.
         let mut res = None;
@@ -356,7 +358,7 @@ mod tests {
         // Level for 0.8 m, a vertical curve up to 6 % by 1.2 m, then 6 %: the chord test must see it.
         let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
         let mut w = WindowIntegrator::with_capacity(4000);
-        w.start(setup(q0));
+        w.start(setup(q0), Vector3::zeros());
         let (a, top) = (1.0, 0.06f64.atan());
         let grade = |s: f64| {
             (
@@ -397,7 +399,7 @@ mod tests {
     #[test]
     fn gap_breaks_window() {
         let mut w = WindowIntegrator::with_capacity(100);
-        w.start(setup(UnitQuaternion::identity()));
+        w.start(setup(UnitQuaternion::identity()), Vector3::zeros());
         assert_eq!(
             w.push(&ImuSample::new(0.0, [0.0, 0.0, G], [0.0; 3])),
             Step::Continue

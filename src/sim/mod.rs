@@ -1,1 +1,9 @@
-pub fn placeholder() {}
+//! Vehicle and IMU simulator with ground truth. The estimator does not depend on it.
+
+pub mod drive;
+pub mod noise;
+pub mod paper;
+pub mod scenario;
+
+pub use drive::{Drive, Input, Truth, simulate};
+pub use scenario::{Road, Scenario, Sensors, SpeedProfile, Vehicle};

@@ -1,0 +1,272 @@
+//! Generation of IMU and wheel-speed samples with ground truth.
+//!
+//! Kinematics run on a sub-grid five times the IMU rate. The body-pitch-centre
+//! acceleration is analytic (tangential plus vertical and horizontal centripetal
+//! terms); the IMU adds the lever-arm motion and the angular rate, both from central
+//! differences on the sub-grid.
+
+use super::noise::Gauss;
+use super::scenario::Scenario;
+use crate::estimator::{ImuSample, WheelSpeeds};
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::Serialize;
+
+/// Standard gravity used by the simulator, m/s^2.
+pub const G_MPS2: f64 = 9.80665;
+
+/// Ground truth at one IMU sample time.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Truth {
+    pub t_s: f64,
+    /// Distance travelled along the road, m.
+    pub s_m: f64,
+    pub v_mps: f64,
+    /// Road grade under the vehicle, deg.
+    pub grade_deg: f64,
+    /// Static road-to-body pitch of the load, deg (what leveld estimates).
+    pub load_pitch_deg: f64,
+    /// Dynamic body pitch from the suspension, deg.
+    pub suspension_deg: f64,
+}
+
+/// A simulated drive.
+#[derive(Debug, Clone)]
+pub struct Drive {
+    pub imu: Vec<ImuSample>,
+    pub wheels: Vec<WheelSpeeds>,
+    /// One entry per IMU sample time (including dropped samples).
+    pub truth: Vec<Truth>,
+}
+
+impl Drive {
+    /// Truth nearest to time `t`.
+    pub fn truth_at(&self, t: f64) -> &Truth {
+        let i = self
+            .truth
+            .partition_point(|x| x.t_s < t)
+            .min(self.truth.len() - 1);
+        &self.truth[i]
+    }
+
+    /// Events in time order, merging IMU and wheel samples.
+    pub fn merged(&self) -> impl Iterator<Item = Input> + '_ {
+        let (mut i, mut w) = (0, 0);
+        std::iter::from_fn(move || {
+            let ni = self.imu.get(i);
+            let nw = self.wheels.get(w);
+            match (ni, nw) {
+                (Some(a), Some(b)) if b.t_s <= a.t_s => {
+                    w += 1;
+                    Some(Input::Wheels(*b))
+                }
+                (Some(a), _) => {
+                    i += 1;
+                    Some(Input::Imu(*a))
+                }
+                (None, Some(b)) => {
+                    w += 1;
+                    Some(Input::Wheels(*b))
+                }
+                (None, None) => None,
+            }
+        })
+    }
+}
+
+/// One estimator input.
+#[derive(Debug, Clone, Copy)]
+pub enum Input {
+    Imu(ImuSample),
+    Wheels(WheelSpeeds),
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Kin {
+    q: UnitQuaternion<f64>,
+    /// Pitch-centre acceleration, nav frame, m/s^2.
+    acc: Vector3<f64>,
+    lever: Vector3<f64>,
+    truth: Truth,
+    kappa: f64,
+}
+
+/// Simulate a scenario. Deterministic for a given scenario (its seed included).
+pub fn simulate(sc: &Scenario) -> Drive {
+    let sen = &sc.sensors;
+    let veh = &sc.vehicle;
+    let sub = 5usize;
+    let h = 1.0 / (sen.imu_rate_hz * sub as f64);
+    let total = sc.speed.duration_s();
+    let n_steps = (total / h).floor() as usize;
+    let mut g = Gauss::new(sc.seed);
+    let lever = Vector3::from(veh.lever_arm_m);
+    let wn = std::f64::consts::TAU * veh.pitch_freq_hz;
+
+    // Speed-profile cursor.
+    let segs = &sc.speed.segments;
+    let (mut seg, mut seg_t0) = (0usize, 0.0f64);
+    let (mut v, mut s) = (0.0f64, 0.0f64);
+    // Suspension state (rad, rad/s).
+    let (mut beta, mut beta_dot) = (0.0f64, 0.0f64);
+
+    let acc_sigma = sen.acc_noise_ug_rthz * 1e-6 * G_MPS2 * sen.imu_rate_hz.sqrt();
+    let gyro_sigma = sen.gyro_noise_dps_rthz * sen.imu_rate_hz.sqrt();
+    let imu_dt = 1.0 / sen.imu_rate_hz;
+    let mut acc_bias = Vector3::from(sen.acc_bias_mps2);
+    let mut gyro_bias = Vector3::from(sen.gyro_bias_dps);
+
+    let mut imu = Vec::with_capacity(n_steps / sub + 1);
+    let mut truth = Vec::with_capacity(n_steps / sub + 1);
+    let mut wheels = Vec::new();
+    let wheel_every = (sen.imu_rate_hz / sen.wheel_rate_hz).round().max(1.0) as usize;
+
+    let mut window: [Option<Kin>; 3] = [None, None, None];
+    let mut inst: Vec<Option<(Vector3<f64>, Vector3<f64>, Kin)>> = vec![None; sub];
+    for k in 0..=n_steps {
+        let t = k as f64 * h;
+        // Advance the profile to time t (exact for piecewise-constant acceleration).
+        while seg < segs.len() && t >= seg_t0 + segs[seg].duration_s {
+            seg_t0 += segs[seg].duration_s;
+            seg += 1;
+        }
+        let a_cmd = if seg < segs.len() {
+            segs[seg].accel_mps2
+        } else {
+            0.0
+        };
+        // Speed cannot go negative: a braking segment that overshoots holds at rest.
+        let a_long = if v <= 0.0 && a_cmd < 0.0 { 0.0 } else { a_cmd };
+        // The body rests on both axles: its road pitch is the chord between the contact
+        // points and the pitch centre moves with their midpoint.
+        let half_wb = 0.5 * veh.wheelbase_m;
+        let (sf, sr) = (s + half_wb, s - half_wb);
+        let (pf, pr) = (sc.road.elevation(sf), sc.road.elevation(sr));
+        let gam = (pf.1 - pr.1).atan2(pf.0 - pr.0);
+        let (kappa, psi) = sc.road.heading(s);
+        let load = sc.load_pitch_deg_at(t).to_radians();
+        let pitch = gam + load + beta;
+        let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
+            * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch);
+        // Acceleration of the midpoint in the vertical plane of the road: tangential plus
+        // centripetal of each contact point, averaged.
+        let mut along = 0.0;
+        let mut vert = 0.0;
+        for si in [sf, sr] {
+            let (g, dg) = sc.road.grade(si);
+            along += 0.5 * (a_long * g.cos() - v * v * dg * g.sin());
+            vert += 0.5 * (a_long * g.sin() + v * v * dg * g.cos());
+        }
+        let (sp, cp) = psi.sin_cos();
+        let left = Vector3::new(-sp, cp, 0.0);
+        let acc = Vector3::new(along * cp, along * sp, vert) + left * (v * v * kappa);
+        let kin = Kin {
+            q,
+            acc,
+            lever: q * lever,
+            truth: Truth {
+                t_s: t,
+                s_m: s,
+                v_mps: v,
+                grade_deg: sc.road.grade(s).0.to_degrees(),
+                load_pitch_deg: load.to_degrees(),
+                suspension_deg: beta.to_degrees(),
+            },
+            kappa,
+        };
+        window = [window[1], window[2], Some(kin)];
+
+        // Instantaneous specific force and rate at the middle grid point (central differences).
+        if k >= 2 {
+            let (p, m, n) = (window[0].unwrap(), window[1].unwrap(), window[2].unwrap());
+            let lever_acc = (n.lever - m.lever * 2.0 + p.lever) / (h * h);
+            let f_b = m.q.inverse() * (m.acc + lever_acc + Vector3::new(0.0, 0.0, G_MPS2));
+            let w_b = (p.q.inverse() * n.q).scaled_axis() / (2.0 * h);
+            inst[(k - 1) % sub] = Some((f_b, w_b, m));
+        }
+        // A sensor sample is the mean over its output period centred on the sample time,
+        // as a MEMS IMU's digital filter delivers it; point samples would alias steps.
+        if k >= sub + 1 && (k - 1 - sub / 2) % sub == 0 {
+            let c = k - 1 - sub / 2;
+            let mut f_b = Vector3::zeros();
+            let mut w_b = Vector3::zeros();
+            let mut centre = None;
+            for (j, e) in inst.iter().enumerate() {
+                let (f, w, kin) = e.expect("filled");
+                f_b += f;
+                w_b += w;
+                if j == c % sub {
+                    centre = Some(kin);
+                }
+            }
+            f_b /= sub as f64;
+            w_b /= sub as f64;
+            let m = centre.expect("centre sample");
+            let idx = c / sub;
+            truth.push(m.truth);
+            if sen.acc_bias_walk_mps2_rts > 0.0 {
+                for i in 0..3 {
+                    acc_bias[i] += sen.acc_bias_walk_mps2_rts * imu_dt.sqrt() * g.normal();
+                }
+            }
+            if sen.gyro_bias_walk_dps_rts > 0.0 {
+                for i in 0..3 {
+                    gyro_bias[i] += sen.gyro_bias_walk_dps_rts * imu_dt.sqrt() * g.normal();
+                }
+            }
+            let mut f = f_b + acc_bias;
+            let mut w = w_b.map(f64::to_degrees) + gyro_bias;
+            for i in 0..3 {
+                f[i] += acc_sigma * g.normal();
+                w[i] += gyro_sigma * g.normal();
+            }
+            let dropped = sen.imu_drop_prob > 0.0 && g.uniform() < sen.imu_drop_prob;
+            if !dropped {
+                imu.push(ImuSample::new(m.truth.t_s, f.into(), w.into()));
+            }
+            if idx % wheel_every == 0 {
+                wheels.push(wheel_speeds(
+                    m.truth.t_s,
+                    m.truth.v_mps,
+                    m.kappa,
+                    veh.track_m,
+                    sen,
+                ));
+            }
+        }
+
+        // Integrate to the next grid point.
+        let v_next = (v + a_long * h).max(0.0);
+        s += 0.5 * (v + v_next) * h;
+        v = v_next;
+        let target = veh.pitch_per_accel_deg.to_radians() * a_long;
+        let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
+        beta_dot += beta_dd * h;
+        beta += beta_dot * h;
+    }
+    Drive { imu, wheels, truth }
+}
+
+fn wheel_speeds(
+    t: f64,
+    v: f64,
+    kappa: f64,
+    track: f64,
+    sen: &super::scenario::Sensors,
+) -> WheelSpeeds {
+    let read = |v_mps: f64| {
+        let kmh = v_mps.max(0.0) * 3.6;
+        if kmh < sen.wheel_zero_below_kmh || kmh <= 0.0 {
+            0.0
+        } else if sen.wheel_quantum_kmh > 0.0 {
+            (kmh / sen.wheel_quantum_kmh).floor() * sen.wheel_quantum_kmh
+        } else {
+            kmh
+        }
+    };
+    let half = 0.5 * kappa * track;
+    let (l, r) = (read(v * (1.0 - half)), read(v * (1.0 + half)));
+    WheelSpeeds {
+        t_s: t,
+        kmh: [l, r, l, r],
+    }
+}

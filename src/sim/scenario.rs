@@ -1,0 +1,273 @@
+//! What a simulated drive is: speed profile, road, load, vehicle and sensors.
+
+use serde::{Deserialize, Serialize};
+
+/// One piece of the speed profile: constant acceleration for a duration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SpeedSegment {
+    pub duration_s: f64,
+    /// Longitudinal acceleration along the road, m/s^2.
+    pub accel_mps2: f64,
+}
+
+/// Speed profile built from segments; speed never goes below zero.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SpeedProfile {
+    pub segments: Vec<SpeedSegment>,
+}
+
+impl SpeedProfile {
+    pub fn hold(mut self, duration_s: f64) -> Self {
+        self.segments.push(SpeedSegment {
+            duration_s,
+            accel_mps2: 0.0,
+        });
+        self
+    }
+    pub fn accel(mut self, accel_mps2: f64, duration_s: f64) -> Self {
+        self.segments.push(SpeedSegment {
+            duration_s,
+            accel_mps2,
+        });
+        self
+    }
+    /// Stop, accelerate at `a` to `v_max`, cruise, brake at `b` to a stop, stop.
+    pub fn stop_go(self, hold_s: f64, a: f64, v_max: f64, cruise_s: f64, b: f64) -> Self {
+        let s = self.hold(hold_s).accel(a, v_max / a);
+        let s = if cruise_s > 0.0 { s.hold(cruise_s) } else { s };
+        s.accel(-b, v_max / b)
+    }
+    pub fn duration_s(&self) -> f64 {
+        self.segments.iter().map(|s| s.duration_s).sum()
+    }
+}
+
+/// Road geometry as functions of travelled distance.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Road {
+    /// (distance m, grade angle deg) knots; linear between them, constant outside.
+    /// Empty means level.
+    pub grade_deg: Vec<(f64, f64)>,
+    /// (from m, to m, curvature 1/m, positive turning left).
+    pub curves: Vec<(f64, f64, f64)>,
+}
+
+impl Road {
+    pub fn constant(grade_deg: f64) -> Self {
+        Self {
+            grade_deg: vec![(0.0, grade_deg)],
+            curves: Vec::new(),
+        }
+    }
+
+    /// Grade angle (rad) and its derivative along the road (rad/m) at distance `s`.
+    pub fn grade(&self, s: f64) -> (f64, f64) {
+        let k = &self.grade_deg;
+        match k.len() {
+            0 => (0.0, 0.0),
+            _ if s <= k[0].0 => (k[0].1.to_radians(), 0.0),
+            _ if s >= k[k.len() - 1].0 => (k[k.len() - 1].1.to_radians(), 0.0),
+            _ => {
+                let i = k.partition_point(|p| p.0 <= s) - 1;
+                let (s0, g0) = k[i];
+                let (s1, g1) = k[i + 1];
+                let slope = (g1 - g0) / (s1 - s0);
+                ((g0 + slope * (s - s0)).to_radians(), slope.to_radians())
+            }
+        }
+    }
+
+    /// Position along the road profile at distance `s`: (horizontal m, height m).
+    /// Exact for the piecewise-linear grade (closed-form integrals of cos and sin).
+    pub fn elevation(&self, s: f64) -> (f64, f64) {
+        let k = &self.grade_deg;
+        if k.is_empty() {
+            return (s, 0.0);
+        }
+        // Piece from a to b with grade g(a) and constant derivative dg.
+        let piece = |a: f64, b: f64| -> (f64, f64) {
+            let (g0, dg) = self.grade(0.5 * (a + b));
+            let g0 = g0 - dg * (0.5 * (b - a));
+            let len = b - a;
+            if dg.abs() < 1e-12 {
+                (g0.cos() * len, g0.sin() * len)
+            } else {
+                let g1 = g0 + dg * len;
+                ((g1.sin() - g0.sin()) / dg, (g0.cos() - g1.cos()) / dg)
+            }
+        };
+        let mut edges: Vec<f64> = Vec::with_capacity(k.len() + 2);
+        let (lo, hi) = (s.min(0.0), s.max(0.0));
+        edges.push(lo);
+        edges.extend(k.iter().map(|p| p.0).filter(|&x| x > lo && x < hi));
+        edges.push(hi);
+        let (mut x, mut z) = (0.0, 0.0);
+        for w in edges.windows(2) {
+            let (dx, dz) = piece(w[0], w[1]);
+            x += dx;
+            z += dz;
+        }
+        if s < 0.0 { (-x, -z) } else { (x, z) }
+    }
+
+    /// Curvature (1/m) and heading (rad) at distance `s`.
+    pub fn heading(&self, s: f64) -> (f64, f64) {
+        let mut psi = 0.0;
+        let mut kappa = 0.0;
+        for &(a, b, k) in &self.curves {
+            if s > a {
+                psi += k * (s.min(b) - a);
+            }
+            if s >= a && s < b {
+                kappa = k;
+            }
+        }
+        (kappa, psi)
+    }
+
+    /// Mean slope (rad) of the road between distances `s0` and `s1` (chord of the profile).
+    pub fn chord_slope(&self, s0: f64, s1: f64) -> f64 {
+        let (lo, hi) = if s0 <= s1 { (s0, s1) } else { (s1, s0) };
+        let n = 400;
+        let ds = (hi - lo) / n as f64;
+        let (mut x, mut z) = (0.0, 0.0);
+        for i in 0..n {
+            let g = self.grade(lo + (i as f64 + 0.5) * ds).0;
+            x += g.cos() * ds;
+            z += g.sin() * ds;
+        }
+        z.atan2(x)
+    }
+}
+
+/// Vehicle body and IMU mounting.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Vehicle {
+    /// IMU position relative to the body pitch centre, body axes (x fwd, y left, z up), m.
+    pub lever_arm_m: [f64; 3],
+    /// Steady body pitch per longitudinal acceleration, deg per m/s^2 (nose-up when accelerating).
+    pub pitch_per_accel_deg: f64,
+    /// Natural frequency of the body pitch mode, Hz.
+    pub pitch_freq_hz: f64,
+    /// Damping ratio of the body pitch mode.
+    pub pitch_damping: f64,
+    /// Track width for wheel-speed differences in turns, m.
+    pub track_m: f64,
+    /// Distance between the axles, m; the body pitch follows the road chord between them.
+    pub wheelbase_m: f64,
+}
+
+impl Default for Vehicle {
+    fn default() -> Self {
+        Self {
+            lever_arm_m: [2.0, 0.0, 0.3],
+            pitch_per_accel_deg: 0.3,
+            pitch_freq_hz: 1.5,
+            pitch_damping: 0.4,
+            track_m: 1.6,
+            wheelbase_m: 2.7,
+        }
+    }
+}
+
+impl Vehicle {
+    /// The paper's simulation: a rigid body with no pitch motion.
+    pub fn rigid() -> Self {
+        Self {
+            pitch_per_accel_deg: 0.0,
+            ..Self::default()
+        }
+    }
+}
+
+/// Sensor error models and rates.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Sensors {
+    pub imu_rate_hz: f64,
+    pub wheel_rate_hz: f64,
+    /// Accelerometer white-noise density, micro-g per sqrt(Hz).
+    pub acc_noise_ug_rthz: f64,
+    /// Constant accelerometer bias per axis, m/s^2.
+    pub acc_bias_mps2: [f64; 3],
+    /// Accelerometer bias random walk, m/s^2 per sqrt(s).
+    pub acc_bias_walk_mps2_rts: f64,
+    /// Gyro white-noise density, deg/s per sqrt(Hz).
+    pub gyro_noise_dps_rthz: f64,
+    /// Constant gyro bias per axis, deg/s.
+    pub gyro_bias_dps: [f64; 3],
+    /// Gyro bias random walk, deg/s per sqrt(s).
+    pub gyro_bias_walk_dps_rts: f64,
+    /// Wheel-speed resolution, km/h.
+    pub wheel_quantum_kmh: f64,
+    /// Wheel sensors read 0 below this speed, km/h.
+    pub wheel_zero_below_kmh: f64,
+    /// Probability that an IMU sample is lost.
+    pub imu_drop_prob: f64,
+}
+
+impl Default for Sensors {
+    fn default() -> Self {
+        Self {
+            imu_rate_hz: 100.0,
+            wheel_rate_hz: 50.0,
+            acc_noise_ug_rthz: 300.0,
+            acc_bias_mps2: [0.0; 3],
+            acc_bias_walk_mps2_rts: 0.0,
+            gyro_noise_dps_rthz: 0.01,
+            gyro_bias_dps: [0.0; 3],
+            gyro_bias_walk_dps_rts: 0.0,
+            wheel_quantum_kmh: 0.03125,
+            wheel_zero_below_kmh: 1.5,
+            imu_drop_prob: 0.0,
+        }
+    }
+}
+
+impl Sensors {
+    /// Error-free sensors with ideal wheel speeds.
+    pub fn ideal() -> Self {
+        Self {
+            acc_noise_ug_rthz: 0.0,
+            gyro_noise_dps_rthz: 0.0,
+            wheel_zero_below_kmh: 0.0,
+            ..Self::default()
+        }
+    }
+}
+
+/// A complete drive to simulate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Scenario {
+    pub speed: SpeedProfile,
+    #[serde(default)]
+    pub road: Road,
+    /// Road-to-body pitch of the load, deg, at the start.
+    pub load_pitch_deg: f64,
+    /// Load steps: (start time s, new road-to-body pitch deg, ramp duration s).
+    #[serde(default)]
+    pub load_changes: Vec<(f64, f64, f64)>,
+    #[serde(default)]
+    pub vehicle: Vehicle,
+    #[serde(default)]
+    pub sensors: Sensors,
+    pub seed: u64,
+}
+
+impl Scenario {
+    /// Road-to-body pitch of the load at time `t`, deg.
+    pub fn load_pitch_deg_at(&self, t: f64) -> f64 {
+        let mut p = self.load_pitch_deg;
+        for &(t0, to, ramp) in &self.load_changes {
+            if t >= t0 + ramp {
+                p = to;
+            } else if t > t0 {
+                // Smoothstep: the body rotates without a jump in rate.
+                let x = (t - t0) / ramp.max(1e-9);
+                p += (to - p) * x * x * (3.0 - 2.0 * x);
+            }
+        }
+        p
+    }
+}
