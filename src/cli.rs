@@ -22,6 +22,21 @@ pub enum Format {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Run the pipeline on a candump log (`-` reads standard input).
+    Replay {
+        input: std::path::PathBuf,
+        /// DBC with WHL_SPD11, IMU_ACC and IMU_GYR.
+        #[arg(long, default_value = "dbc/leveld.dbc")]
+        dbc: std::path::PathBuf,
+        /// Only frames from this interface (default: every interface in the log).
+        #[arg(long)]
+        interface: Option<String>,
+        #[arg(long, value_enum, default_value_t = Format::Table)]
+        format: Format,
+        /// Stop at the first malformed line.
+        #[arg(long)]
+        strict: bool,
+    },
     /// Run the simulator.
     Simulate {
         #[command(subcommand)]
@@ -48,6 +63,43 @@ pub enum SimulateCmd {
 
 pub fn run(cli: Cli) -> Result<i32> {
     match cli.command {
+        Command::Replay {
+            input,
+            dbc,
+            interface,
+            format,
+            strict,
+        } => {
+            use crate::daemon::{gateway, replay};
+            use anyhow::Context;
+            let db = crate::can::dbc::Database::load(&dbc)?;
+            let codecs = gateway::InputCodecs::reference(&db)?;
+            let mut gw =
+                gateway::Gateway::new(codecs, crate::estimator::EstimatorConfig::default())?;
+            let mut reader: Box<dyn std::io::BufRead> = if input.as_os_str() == "-" {
+                Box::new(std::io::stdin().lock())
+            } else {
+                let f = std::fs::File::open(&input)
+                    .with_context(|| format!("cannot open log {}", input.display()))?;
+                Box::new(std::io::BufReader::with_capacity(1 << 16, f))
+            };
+            let json = format == Format::Json;
+            let opts = replay::ReplayOptions {
+                interface,
+                strict,
+                json,
+            };
+            let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+            let summary = replay::replay(&mut gw, &mut reader, &opts, &mut out)
+                .with_context(|| format!("replaying {}", input.display()))?;
+            if json {
+                use std::io::Write;
+                writeln!(out, "{}", serde_json::json!({ "summary": summary }))?;
+            } else {
+                replay::write_summary_text(&mut out, &summary)?;
+            }
+            Ok(0)
+        }
         Command::Simulate { what } => match what {
             SimulateCmd::PaperGrid {
                 runs,

@@ -3,7 +3,9 @@
 //! - [`estimator`]: the sans-IO estimator (Kim et al., IEEE Access 2023).
 //! - [`sim`]: a vehicle and IMU simulator with ground truth.
 
+pub mod can;
 pub mod cli;
+pub mod daemon;
 pub mod estimator;
 pub mod report;
 pub mod sim;
