@@ -46,6 +46,30 @@ pub enum Command {
 
 #[derive(Debug, Subcommand)]
 pub enum SimulateCmd {
+    /// Simulate a drive and write it as a candump log through the DBC, with a truth file.
+    Drive {
+        /// A named drive (multi-stop, load-change).
+        #[arg(long, default_value = "multi-stop", conflicts_with = "scenario")]
+        preset: String,
+        /// A scenario file (TOML) instead of a preset.
+        #[arg(long)]
+        scenario: Option<std::path::PathBuf>,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// candump log to write (`-` for standard output).
+        #[arg(long, short)]
+        output: std::path::PathBuf,
+        /// Truth to write as JSON lines at 10 Hz.
+        #[arg(long)]
+        truth: Option<std::path::PathBuf>,
+        #[arg(long, default_value = "vcan0")]
+        interface: String,
+        /// Added to simulation time in the log, s.
+        #[arg(long, default_value_t = 1000.0)]
+        t0: f64,
+        #[arg(long, default_value = "dbc/leveld.dbc")]
+        dbc: std::path::PathBuf,
+    },
     /// Reproduce the simulation study of Kim et al. 2023 (Table 1, Fig. 13-18).
     PaperGrid {
         /// Movements per setting (the paper uses 50); each gives two windows.
@@ -101,6 +125,28 @@ pub fn run(cli: Cli) -> Result<i32> {
             Ok(0)
         }
         Command::Simulate { what } => match what {
+            SimulateCmd::Drive {
+                preset,
+                scenario,
+                seed,
+                output,
+                truth,
+                interface,
+                t0,
+                dbc,
+            } => {
+                crate::report::simulate_drive(
+                    &preset,
+                    scenario.as_deref(),
+                    seed,
+                    &output,
+                    truth.as_deref(),
+                    &interface,
+                    t0,
+                    &dbc,
+                )?;
+                Ok(0)
+            }
             SimulateCmd::PaperGrid {
                 runs,
                 seed,

@@ -95,3 +95,67 @@ fn write_table(out: &mut impl Write, rows: &[Row]) -> Result<()> {
     }
     Ok(())
 }
+
+/// `leveld simulate drive`.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_drive(
+    preset: &str,
+    scenario: Option<&std::path::Path>,
+    seed: u64,
+    output: &std::path::Path,
+    truth: Option<&std::path::Path>,
+    iface: &str,
+    t0: f64,
+    dbc: &std::path::Path,
+) -> Result<()> {
+    use anyhow::{Context, bail};
+    let sc = match scenario {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read scenario {}", p.display()))?;
+            let mut sc: crate::sim::Scenario = toml::from_str(&text)
+                .with_context(|| format!("scenario {} is not valid", p.display()))?;
+            sc.seed = seed;
+            sc
+        }
+        None => match crate::sim::presets::preset(preset, seed) {
+            Some(sc) => sc,
+            None => bail!(
+                "unknown preset `{preset}`; choose one of: {}",
+                crate::sim::presets::NAMES.join(", ")
+            ),
+        },
+    };
+    let db = crate::can::dbc::Database::load(dbc)?;
+    let mut enc = crate::sim::canlog::InputEncoder::new(&db)?;
+    let drive = crate::sim::simulate(&sc);
+    let mut out: Box<dyn Write> = if output.as_os_str() == "-" {
+        Box::new(std::io::BufWriter::new(std::io::stdout().lock()))
+    } else {
+        Box::new(std::io::BufWriter::new(
+            std::fs::File::create(output)
+                .with_context(|| format!("cannot create {}", output.display()))?,
+        ))
+    };
+    let frames = crate::sim::canlog::write_candump(&drive, &mut enc, iface, t0, &mut out)?;
+    out.flush()?;
+    if let Some(tp) = truth {
+        let mut t = std::io::BufWriter::new(
+            std::fs::File::create(tp).with_context(|| format!("cannot create {}", tp.display()))?,
+        );
+        for (i, x) in drive.truth.iter().enumerate() {
+            if i % 10 == 0 {
+                let mut v = serde_json::to_value(x)?;
+                v["t_s"] = serde_json::json!(x.t_s + t0);
+                writeln!(t, "{v}")?;
+            }
+        }
+        t.flush()?;
+    }
+    eprintln!(
+        "simulated {:.0} s, {} frames",
+        sc.speed.duration_s(),
+        frames
+    );
+    Ok(())
+}

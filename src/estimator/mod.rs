@@ -517,6 +517,28 @@ impl Estimator {
         lo
     }
 
+    /// Bias-corrected body rate at sample `i` from a local quadratic fit over +-10
+    /// samples (Savitzky-Golay): the velocity of an IMU still rocking about the pitch
+    /// centre at a walk start. A single sample's noise times a 2 m lever arm would cost
+    /// about 0.1 deg of slope; a plain mean would flatten the ~1.5 Hz rocking.
+    fn mean_rate(&self, i: usize) -> Vector3<f64> {
+        const M: usize = 10;
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        if i < M || i + M >= self.hist.len() {
+            return self.hist.get(i).gyro_rps() - bias;
+        }
+        // Centre weights of the quadratic smoother: (3(3m^2+3m-1) - 15 k^2) / norm.
+        let m = M as f64;
+        let norm = (2.0 * m - 1.0) * (2.0 * m + 1.0) * (2.0 * m + 3.0) / 3.0;
+        let mut w = Vector3::zeros();
+        for j in 0..=2 * M {
+            let k = j as f64 - m;
+            let c = (3.0 * m * m + 3.0 * m - 1.0 - 5.0 * k * k) / norm;
+            w += self.hist.get(i + j - M).gyro_rps() * c;
+        }
+        w - bias
+    }
+
     /// Carry an attitude along the history from sample `from` to sample `to` with the
     /// bias-corrected gyro (eq. 10-11), in either direction.
     fn carry(&self, mut q: UnitQuaternion<f64>, from: usize, to: usize) -> UnitQuaternion<f64> {
@@ -722,9 +744,8 @@ impl Estimator {
         }
         let rest = self.index_at(st.t_rest_s);
         let q0 = self.carry(q_ref, self.index_at(st.seg_first_s), rest);
-        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let setup = self.window_setup(q0, self.gravity_mps2(st.mean().norm()));
-        self.bwd.start(setup, self.hist.get(rest).gyro_rps() - bias);
+        self.bwd.start(setup, self.mean_rate(rest));
         let mut result = None;
         for i in (0..=rest).rev() {
             if let Step::Done(r) = self.bwd.push(&self.hist.get(i)) {
@@ -804,12 +825,19 @@ impl Estimator {
             }
             i -= 1;
         }
+        // Two samples of margin: a sample straddling the drive-off can still match.
+        let first = first.saturating_sub(2).max(floor);
         let last_settled = self.index_at(st.seg_last_s).min(n - 1);
         let q0 = self.carry(q_ref, last_settled, first);
-        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let setup = self.window_setup(q0, self.gravity_mps2(g_mean.norm()));
-        self.fwd
-            .start(setup, self.hist.get(first).gyro_rps() - bias);
+        // A stop that settled ends with the body at rest: its rate is zero, not noise.
+        let settled_at_start = st.settled_done && self.hist.get(first).t_s - st.seg_last_s < 1.0;
+        let omega0 = if settled_at_start {
+            Vector3::zeros()
+        } else {
+            self.mean_rate(first)
+        };
+        self.fwd.start(setup, omega0);
         self.fwd_ctx = Some(ForwardCtx {
             imu_pitch_rad: pitch_of(&q_ref),
         });

@@ -1,8 +1,10 @@
 //! Vehicle and IMU simulator with ground truth. The estimator does not depend on it.
 
+pub mod canlog;
 pub mod drive;
 pub mod noise;
 pub mod paper;
+pub mod presets;
 pub mod scenario;
 
 pub use drive::{Drive, Input, Truth, simulate};
