@@ -2,6 +2,7 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
+use std::path::PathBuf;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -24,10 +25,13 @@ pub enum Format {
 pub enum Command {
     /// Run the pipeline on a candump log (`-` reads standard input).
     Replay {
-        input: std::path::PathBuf,
-        /// DBC with WHL_SPD11, IMU_ACC and IMU_GYR.
-        #[arg(long, default_value = "dbc/leveld.dbc")]
-        dbc: std::path::PathBuf,
+        input: PathBuf,
+        /// Config file (default: /etc/leveld/leveld.toml, else the built-in one).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Write the LEVELING frames here in `candump -L` format, stamped with the log clock.
+        #[arg(long, short)]
+        output: Option<PathBuf>,
         /// Only frames from this interface (default: every interface in the log).
         #[arg(long)]
         interface: Option<String>,
@@ -36,6 +40,11 @@ pub enum Command {
         /// Stop at the first malformed line.
         #[arg(long)]
         strict: bool,
+    },
+    /// Validate the config and its DBC, and print what will be decoded.
+    CheckConfig {
+        #[arg(long)]
+        config: Option<PathBuf>,
     },
     /// Run the simulator.
     Simulate {
@@ -89,41 +98,20 @@ pub fn run(cli: Cli) -> Result<i32> {
     match cli.command {
         Command::Replay {
             input,
-            dbc,
+            config,
+            output,
             interface,
             format,
             strict,
-        } => {
-            use crate::daemon::{gateway, replay};
-            use anyhow::Context;
-            let db = crate::can::dbc::Database::load(&dbc)?;
-            let codecs = gateway::InputCodecs::reference(&db)?;
-            let mut gw =
-                gateway::Gateway::new(codecs, crate::estimator::EstimatorConfig::default())?;
-            let mut reader: Box<dyn std::io::BufRead> = if input.as_os_str() == "-" {
-                Box::new(std::io::stdin().lock())
-            } else {
-                let f = std::fs::File::open(&input)
-                    .with_context(|| format!("cannot open log {}", input.display()))?;
-                Box::new(std::io::BufReader::with_capacity(1 << 16, f))
-            };
-            let json = format == Format::Json;
-            let opts = replay::ReplayOptions {
-                interface,
-                strict,
-                json,
-            };
-            let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-            let summary = replay::replay(&mut gw, &mut reader, &opts, &mut out)
-                .with_context(|| format!("replaying {}", input.display()))?;
-            if json {
-                use std::io::Write;
-                writeln!(out, "{}", serde_json::json!({ "summary": summary }))?;
-            } else {
-                replay::write_summary_text(&mut out, &summary)?;
-            }
-            Ok(0)
-        }
+        } => crate::report::replay(
+            &input,
+            config.as_deref(),
+            output.as_deref(),
+            interface,
+            format == Format::Json,
+            strict,
+        ),
+        Command::CheckConfig { config } => crate::report::check_config(config.as_deref()),
         Command::Simulate { what } => match what {
             SimulateCmd::Drive {
                 preset,

@@ -159,3 +159,112 @@ pub fn simulate_drive(
     );
     Ok(())
 }
+
+/// `leveld replay`.
+pub fn replay(
+    input: &std::path::Path,
+    config: Option<&std::path::Path>,
+    output: Option<&std::path::Path>,
+    interface: Option<String>,
+    json: bool,
+    strict: bool,
+) -> Result<i32> {
+    use crate::daemon::{pipeline::Pipeline, replay};
+    use anyhow::Context;
+    let (cfg, db, _src) = crate::daemon::load(config)?;
+    let mut p = Pipeline::new(&cfg, &db)?;
+    let mut reader: Box<dyn std::io::BufRead> = if input.as_os_str() == "-" {
+        Box::new(std::io::stdin().lock())
+    } else {
+        let f = std::fs::File::open(input)
+            .with_context(|| format!("cannot open log {}", input.display()))?;
+        Box::new(std::io::BufReader::with_capacity(1 << 16, f))
+    };
+    let mut frames_out = match output {
+        Some(o) => Some(std::io::BufWriter::new(
+            std::fs::File::create(o).with_context(|| format!("cannot create {}", o.display()))?,
+        )),
+        None => None,
+    };
+    let opts = replay::ReplayOptions {
+        interface,
+        strict,
+        json,
+        output_interface: cfg.can.output_interface.clone(),
+    };
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let summary = replay::replay(
+        &mut p,
+        &mut reader,
+        &opts,
+        &mut out,
+        frames_out.as_mut().map(|w| w as &mut dyn Write),
+    )
+    .with_context(|| format!("replaying {}", input.display()))?;
+    if let Some(w) = frames_out.as_mut() {
+        w.flush().context("writing the output log")?;
+    }
+    if json {
+        writeln!(out, "{}", serde_json::json!({ "summary": summary }))?;
+    } else {
+        replay::write_summary_text(&mut out, &summary)?;
+    }
+    out.flush()?;
+    Ok(0)
+}
+
+/// `leveld check-config`.
+pub fn check_config(config: Option<&std::path::Path>) -> Result<i32> {
+    use crate::daemon::pipeline::{ACC, GYR, Pipeline, WHEELS};
+    let (cfg, db, src) = crate::daemon::load(config)?;
+    let p = Pipeline::new(&cfg, &db)?;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "config: {src}")?;
+    writeln!(out, "DBC:    {}", db.path.display())?;
+    writeln!(
+        out,
+        "input interfaces: {}; output on {}",
+        cfg.can.input_interfaces.join(", "),
+        cfg.can.output_interface
+    )?;
+    for (slot, m) in [(WHEELS, &cfg.wheels), (ACC, &cfg.acc), (GYR, &cfg.gyro)] {
+        let c = p.input_codec(slot);
+        writeln!(
+            out,
+            "{:6} <- {} (0x{:X}{}), signals {}, counter [{}]{}, checksum {:?} [{}]{}, timeout {:.0} ms",
+            c.name,
+            m.message,
+            c.id,
+            if c.extended { " ext" } else { "" },
+            m.signals.join(" "),
+            m.counter.join(" "),
+            if m.check_counter {
+                ""
+            } else {
+                " (not checked)"
+            },
+            m.checksum_kind,
+            m.checksum.join(" "),
+            if m.check_checksum {
+                ""
+            } else {
+                " (not checked)"
+            },
+            c.timeout_s * 1000.0
+        )?;
+    }
+    let o = p.output();
+    writeln!(
+        out,
+        "output -> {} (0x{:X}) every {} ms and on change; actuator {:+.2}..{:+.2} deg; reference pitch {:+.3} deg",
+        cfg.output.message,
+        o.id,
+        cfg.output.period_ms,
+        cfg.leveling.actuator_min_deg,
+        cfg.leveling.actuator_max_deg,
+        cfg.leveling.reference_pitch_deg
+    )?;
+    writeln!(out, "state file: {}", cfg.state.path.display())?;
+    writeln!(out, "ok")?;
+    Ok(0)
+}

@@ -106,6 +106,36 @@ impl Database {
         })
     }
 
+    /// `GenMsgCycleTime` of a message, ms, when the DBC gives one above zero.
+    pub fn cycle_time_ms(&self, message: &str) -> Option<u64> {
+        let m = self.dbc.messages.iter().find(|m| m.name == message)?;
+        let v = match self.dbc.message_attribute(m.id, "GenMsgCycleTime")? {
+            can_dbc::AttributeValue::Uint(v) => *v as f64,
+            can_dbc::AttributeValue::Int(v) => *v as f64,
+            can_dbc::AttributeValue::Double(v) => *v,
+            can_dbc::AttributeValue::String(_) => return None,
+        };
+        (v > 0.0).then_some(v as u64)
+    }
+
+    /// Signals of a message as (name, codec, unit), in DBC order.
+    pub fn signals_of(
+        &self,
+        message: &str,
+    ) -> Result<Vec<(String, SignalCodec, String)>, DbcError> {
+        let m = self.message_by_name(message)?;
+        m.signals
+            .iter()
+            .map(|s| {
+                Ok((
+                    s.name.clone(),
+                    self.signal(message, &s.name)?,
+                    s.unit.clone(),
+                ))
+            })
+            .collect()
+    }
+
     pub fn signal(&self, message: &str, signal: &str) -> Result<SignalCodec, DbcError> {
         let m = self.message_by_name(message)?;
         let s = m

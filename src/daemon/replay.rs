@@ -1,26 +1,40 @@
-//! `leveld replay`: the gateway run over a candump log, with log timestamps as time.
+//! `leveld replay`: the pipeline run over a candump log, with log stamps as time.
 
-use super::gateway::{ACC, GYR, Gateway, MsgStats, WHEELS};
-use crate::can::candump::{Line, parse_line};
+use super::pipeline::{ACC, GYR, MsgStats, Notice, Pipeline, Sink, WHEELS};
+use crate::can::candump::{CandumpLine, Line, LogFrame, parse_line};
 use crate::estimator::Event;
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::io::{BufRead, Write};
 
 /// Options of one replay.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct ReplayOptions {
-    /// Only frames from this interface; all interfaces when `None`.
+    /// Only frames from this interface; every interface when `None`.
     pub interface: Option<String>,
     /// Malformed lines are fatal.
     pub strict: bool,
     pub json: bool,
+    /// Interface name written on output frames.
+    pub output_interface: String,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        Self {
+            interface: None,
+            strict: false,
+            json: false,
+            output_interface: "can0".into(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
 pub struct FinalState {
     pub road_to_body_pitch_deg: Option<f64>,
     pub std_err_deg: Option<f64>,
+    pub status: super::pipeline::Status,
     pub estimate_count: u64,
     pub standstill: bool,
 }
@@ -37,42 +51,107 @@ pub struct Summary {
     pub estimates_accepted: u64,
     pub estimates_rejected: u64,
     pub standstills: u64,
+    pub leveling_frames: u64,
     #[serde(rename = "final")]
     pub final_state: FinalState,
 }
 
-/// Replay `input` through `gw`, writing events to `out` as they happen.
-pub fn replay(
-    gw: &mut Gateway,
-    input: &mut dyn BufRead,
-    opts: &ReplayOptions,
-    out: &mut dyn Write,
-) -> Result<Summary> {
-    let mut line = String::new();
-    let (mut lineno, mut frames, mut malformed) = (0u64, 0u64, 0u64);
-    let mut examples = Vec::new();
-    let mut standstills = 0u64;
-    let write_err: std::cell::RefCell<Option<std::io::Error>> = std::cell::RefCell::new(None);
-    let json = opts.json;
-    let mut on_event = |e: Event, out: &mut dyn Write| {
-        if let Event::StandstillStarted { .. } = e {
-            standstills += 1;
+struct ReplaySink<'a> {
+    events: &'a mut dyn Write,
+    frames: Option<&'a mut dyn Write>,
+    json: bool,
+    iface: &'a str,
+    err: Option<std::io::Error>,
+}
+
+impl ReplaySink<'_> {
+    fn keep(&mut self, r: std::io::Result<()>) {
+        if let Err(e) = r {
+            self.err.get_or_insert(e);
         }
-        let r = if json {
-            writeln!(out, "{}", serde_json::to_string(&e).unwrap_or_default())
+    }
+}
+
+impl Sink for ReplaySink<'_> {
+    fn event(&mut self, e: &Event) {
+        let r = if self.json {
+            writeln!(
+                self.events,
+                "{}",
+                serde_json::to_string(e).unwrap_or_default()
+            )
         } else {
-            write_text(out, &e)
+            write_text(self.events, e)
         };
-        if let Err(err) = r {
-            write_err.borrow_mut().get_or_insert(err);
+        self.keep(r);
+    }
+    fn notice(&mut self, n: &Notice) {
+        let r = if self.json {
+            writeln!(
+                self.events,
+                "{}",
+                serde_json::to_string(n).unwrap_or_default()
+            )
+        } else {
+            match n {
+                Notice::InputLost { t_s, message } => writeln!(
+                    self.events,
+                    "{t_s:12.3}  input lost        {message}: holding the last estimate"
+                ),
+                Notice::InputRestored { t_s, message } => {
+                    writeln!(self.events, "{t_s:12.3}  input restored    {message}")
+                }
+                Notice::MessageInvalid {
+                    t_s,
+                    message,
+                    reason,
+                } => {
+                    writeln!(
+                        self.events,
+                        "{t_s:12.3}  input invalid     {message}: repeated {reason} failures"
+                    )
+                }
+            }
+        };
+        self.keep(r);
+    }
+    fn frame(&mut self, t_s: f64, id: u32, extended: bool, data: &[u8; 8]) {
+        if let Some(w) = self.frames.as_deref_mut() {
+            let r = writeln!(
+                w,
+                "{}",
+                CandumpLine(&LogFrame::new(t_s, self.iface, id, extended, data))
+            );
+            self.keep(r);
         }
+    }
+}
+
+/// Replay `input` through `p`. Events go to `events`, LEVELING frames to `frames`.
+pub fn replay<'a>(
+    p: &mut Pipeline,
+    input: &mut dyn BufRead,
+    opts: &'a ReplayOptions,
+    events: &'a mut dyn Write,
+    frames: Option<&'a mut dyn Write>,
+) -> Result<Summary> {
+    let mut sink = ReplaySink {
+        events,
+        frames,
+        json: opts.json,
+        iface: &opts.output_interface,
+        err: None,
     };
+    let mut line = String::new();
+    let (mut lineno, mut nframes, mut malformed) = (0u64, 0u64, 0u64);
+    let mut examples = Vec::new();
     loop {
         line.clear();
-        let n = input
+        if input
             .read_line(&mut line)
-            .context("reading the input log")?;
-        if n == 0 {
+            .context("reading the input log")?
+            == 0
+        {
             break;
         }
         lineno += 1;
@@ -82,19 +161,21 @@ pub fn replay(
                 if opts.interface.as_deref().is_some_and(|i| i != f.iface()) {
                     continue;
                 }
-                frames += 1;
+                nframes += 1;
                 if f.remote || f.fd {
-                    gw.ignored_frames += 1;
+                    p.tick(f.t_s, &mut sink);
+                    p.ignored_frames += 1;
                     continue;
                 }
-                gw.on_frame(f.t_s, f.id, f.extended, f.payload(), &mut |e| {
-                    on_event(e, out)
-                });
+                p.on_frame(f.t_s, f.id, f.extended, f.payload(), &mut sink);
             }
             Err(e) => {
                 malformed += 1;
                 if opts.strict {
-                    bail!("line {lineno}: {e}: {:?}", line.trim_end());
+                    bail!(
+                        "line {lineno}: {e}: {:?} (drop --strict to skip malformed lines)",
+                        line.trim_end()
+                    );
                 }
                 if examples.len() < 20 {
                     examples.push(lineno);
@@ -102,32 +183,37 @@ pub fn replay(
                 tracing::warn!("line {lineno}: {e}; line skipped");
             }
         }
-        if let Some(e) = write_err.borrow_mut().take() {
-            return Err(e).context("writing events");
+        if let Some(e) = sink.err.take() {
+            return Err(e).context("writing output");
         }
     }
-    gw.finish(&mut |e| on_event(e, out));
-    let names = gw.codecs().names();
+    p.finish(&mut sink);
+    if let Some(e) = sink.err.take() {
+        return Err(e).context("writing output");
+    }
+    let names = p.message_names().clone();
     let mut messages = std::collections::BTreeMap::new();
     for slot in [WHEELS, ACC, GYR] {
-        messages.insert(names[slot].to_string(), gw.stats[slot]);
+        messages.insert(names[slot].clone(), p.stats(slot));
     }
-    let est = gw.est.estimate();
+    let est = p.estimate();
     Ok(Summary {
         lines: lineno,
-        frames,
+        frames: nframes,
         malformed_lines: malformed,
         malformed_examples: examples,
-        ignored_frames: gw.ignored_frames,
+        ignored_frames: p.ignored_frames,
         messages,
-        estimates_accepted: gw.windows_accepted,
-        estimates_rejected: gw.windows_rejected,
-        standstills,
+        estimates_accepted: p.windows_accepted,
+        estimates_rejected: p.windows_rejected,
+        standstills: p.standstills,
+        leveling_frames: p.frames_sent,
         final_state: FinalState {
             road_to_body_pitch_deg: est.map(|e| e.road_to_body_deg),
             std_err_deg: est.map(|e| e.std_err_deg),
+            status: p.status(),
             estimate_count: est.map_or(0, |e| e.windows),
-            standstill: gw.est.is_standstill(),
+            standstill: p.est.is_standstill(),
         },
     })
 }
@@ -143,14 +229,16 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
         Event::StandstillEnded { t_s, duration_s } => {
             writeln!(out, "{t_s:12.3}  drive-off         after {duration_s:.1} s")
         }
+        Event::WheelsStopped { t_s } => writeln!(out, "{t_s:12.3}  wheels stopped"),
+        Event::WheelsMoving { t_s } => writeln!(out, "{t_s:12.3}  wheels moving"),
         Event::WindowAccepted {
             window: w,
             estimate,
         } => writeln!(
             out,
-            "{:12.3}  window accepted   {:?}: IMU pitch {:+.3}, slope {:+.3}, road-to-body {:+.3} deg -> estimate {:+.3} +- {:.3} deg ({} windows)",
+            "{:12.3}  window accepted   {}: IMU pitch {:+.3}, slope {:+.3}, road-to-body {:+.3} deg -> estimate {:+.3} +- {:.3} deg ({} windows)",
             w.t_s,
-            w.condition,
+            condition_name(w.condition),
             w.imu_pitch_deg,
             w.road_slope_deg,
             w.road_to_body_deg,
@@ -165,7 +253,8 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
         } => {
             writeln!(
                 out,
-                "{t_s:12.3}  window rejected   {condition:?}: {reason:?}"
+                "{t_s:12.3}  window rejected   {}: {reason:?}",
+                condition_name(*condition)
             )
         }
         Event::LoadChanged {
@@ -183,6 +272,13 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
     }
 }
 
+fn condition_name(c: crate::estimator::Condition) -> &'static str {
+    match c {
+        crate::estimator::Condition::AccelAfterStop => "after stop ",
+        crate::estimator::Condition::DecelBeforeStop => "before stop",
+    }
+}
+
 /// Human summary.
 pub fn write_summary_text(out: &mut dyn Write, s: &Summary) -> std::io::Result<()> {
     writeln!(out, "--")?;
@@ -191,28 +287,33 @@ pub fn write_summary_text(out: &mut dyn Write, s: &Summary) -> std::io::Result<(
         "{} lines, {} frames, {} malformed, {} ignored",
         s.lines, s.frames, s.malformed_lines, s.ignored_frames
     )?;
+    if !s.malformed_examples.is_empty() {
+        writeln!(out, "malformed lines: {:?}", s.malformed_examples)?;
+    }
     for (name, m) in &s.messages {
         writeln!(
             out,
-            "{name:10} {:7} frames, {} checksum errors, {} counter errors, {} DLC errors",
-            m.frames, m.checksum_errors, m.counter_errors, m.dlc_errors
+            "{name:10} {:7} frames, {} checksum errors, {} counter errors, {} DLC errors, {} timeouts",
+            m.frames, m.checksum_errors, m.counter_errors, m.dlc_errors, m.timeouts
         )?;
     }
     writeln!(
         out,
-        "standstills {}, windows accepted {}, rejected {}",
-        s.standstills, s.estimates_accepted, s.estimates_rejected
+        "standstills {}, windows accepted {}, rejected {}, LEVELING frames {}",
+        s.standstills, s.estimates_accepted, s.estimates_rejected, s.leveling_frames
     )?;
     match s.final_state.road_to_body_pitch_deg {
         Some(p) => writeln!(
             out,
-            "road-to-body pitch {p:+.3} deg +- {:.3} ({} windows)",
+            "road-to-body pitch {p:+.3} deg +- {:.3} ({} windows), status {:?}",
             s.final_state.std_err_deg.unwrap_or(f64::NAN),
-            s.final_state.estimate_count
+            s.final_state.estimate_count,
+            s.final_state.status
         ),
         None => writeln!(
             out,
-            "road-to-body pitch: no estimate yet (the vehicle must stop and drive off)"
+            "road-to-body pitch: no estimate yet, status {:?}",
+            s.final_state.status
         ),
     }
 }

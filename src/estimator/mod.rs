@@ -72,6 +72,15 @@ pub struct WindowReport {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum Event {
+    /// The wheels have read zero for `zero_speed_time_s` (no IMU needed for this).
+    WheelsStopped {
+        t_s: f64,
+    },
+    /// The wheels read a speed again.
+    WheelsMoving {
+        t_s: f64,
+    },
+    /// Wheels stopped and the IMU still: the standstill reference is being taken.
     StandstillStarted {
         t_s: f64,
         imu_pitch_deg: f64,
@@ -184,6 +193,7 @@ pub struct Estimator {
     last_t_s: Option<f64>,
     wheels: Option<WheelSpeeds>,
     wheels_zero_since: Option<f64>,
+    wheels_stopped: bool,
     quiet_since: Option<f64>,
     /// Odometry since the last standstill ended, m.
     travelled_m: f64,
@@ -217,6 +227,7 @@ impl Estimator {
             last_t_s: None,
             wheels: None,
             wheels_zero_since: None,
+            wheels_stopped: false,
             quiet_since: None,
             travelled_m: 0.0,
             standstill: None,
@@ -348,9 +359,17 @@ impl Estimator {
             self.travelled_m += 0.5 * (prev.mean_kmh() + w.mean_kmh()) / 3.6 * dt;
         }
         if w.max_kmh() <= self.cfg.zero_speed_kmh {
-            self.wheels_zero_since.get_or_insert(w.t_s);
+            let since = *self.wheels_zero_since.get_or_insert(w.t_s);
+            if !self.wheels_stopped && w.t_s - since >= self.cfg.zero_speed_time_s {
+                self.wheels_stopped = true;
+                emit(Event::WheelsStopped { t_s: w.t_s });
+            }
         } else {
             self.wheels_zero_since = None;
+            if self.wheels_stopped {
+                self.wheels_stopped = false;
+                emit(Event::WheelsMoving { t_s: w.t_s });
+            }
         }
         self.wheels = Some(w);
     }
@@ -369,6 +388,7 @@ impl Estimator {
     pub fn wheels_lost(&mut self) {
         self.wheels = None;
         self.wheels_zero_since = None;
+        self.wheels_stopped = false;
     }
 
     /// Feed an IMU sample.

@@ -1,0 +1,263 @@
+//! leveld configuration (TOML): interfaces, DBC, the role of each signal, checks,
+//! timeouts, output, actuator and estimator parameters, state file.
+
+use crate::estimator::EstimatorConfig;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// How a message's checksum is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ChecksumKind {
+    None,
+    /// Hyundai/Kia WHL_SPD11: popcount of the bits outside counter and checksum, XOR 9, AND 15.
+    HyundaiWhlSpd,
+    /// CRC-8 SAE J1850 over the bytes not holding the checksum.
+    Crc8SaeJ1850,
+    /// CRC-8 AUTOSAR (poly 0x2F) over the bytes not holding the checksum.
+    Crc8Autosar,
+}
+
+/// One input message and the signals that play each role in it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputMessage {
+    pub message: String,
+    /// Value signals in role order: FL, FR, RL, RR for wheels; x, y, z for the IMU.
+    pub signals: Vec<String>,
+    /// Alive-counter signals, most significant part first (a split counter has two).
+    #[serde(default)]
+    pub counter: Vec<String>,
+    /// Checksum signals, most significant part first.
+    #[serde(default)]
+    pub checksum: Vec<String>,
+    #[serde(default = "default_checksum_kind")]
+    pub checksum_kind: ChecksumKind,
+    #[serde(default = "yes")]
+    pub check_counter: bool,
+    #[serde(default = "yes")]
+    pub check_checksum: bool,
+    /// Largest accepted counter step (lost frames in between are tolerated).
+    #[serde(default = "default_counter_step")]
+    pub max_counter_step: u8,
+    /// Silence after which the input counts as lost; default 10 x the DBC cycle time.
+    #[serde(default)]
+    pub timeout_ms: Option<u32>,
+}
+
+fn default_checksum_kind() -> ChecksumKind {
+    ChecksumKind::None
+}
+fn yes() -> bool {
+    true
+}
+fn default_counter_step() -> u8 {
+    2
+}
+
+/// Where the leveling result goes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputMessage {
+    pub message: String,
+    #[serde(default = "default_period")]
+    pub period_ms: u32,
+    pub road_to_body: String,
+    pub level_correction: String,
+    pub road_slope: String,
+    pub estimate_count: String,
+    pub status: String,
+    pub counter: String,
+    pub checksum: String,
+    #[serde(default = "default_out_checksum")]
+    pub checksum_kind: ChecksumKind,
+}
+
+fn default_period() -> u32 {
+    100
+}
+fn default_out_checksum() -> ChecksumKind {
+    ChecksumKind::Crc8SaeJ1850
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanConfig {
+    /// Interfaces to read (live). Replays read every interface unless told otherwise.
+    pub input_interfaces: Vec<String>,
+    pub output_interface: String,
+    /// DBC file; relative paths are taken from the config file's folder.
+    pub dbc: PathBuf,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Leveling {
+    /// Road-to-body pitch measured at end-of-line on a level floor, deg. A calibration
+    /// stored in the state file takes precedence.
+    pub reference_pitch_deg: f64,
+    pub actuator_min_deg: f64,
+    pub actuator_max_deg: f64,
+    /// VALID needs a standard error at or below this, deg.
+    pub valid_max_std_err_deg: f64,
+    /// VALID needs at least this many windows (a load-change prior counts).
+    pub valid_min_windows: f64,
+    /// Consecutive failed frames before a message is marked invalid.
+    pub invalid_after: u32,
+    /// Consecutive good frames before an invalid message is valid again.
+    pub valid_after: u32,
+}
+
+impl Default for Leveling {
+    fn default() -> Self {
+        Self {
+            reference_pitch_deg: 0.0,
+            actuator_min_deg: -3.0,
+            actuator_max_deg: 3.0,
+            valid_max_std_err_deg: 0.06,
+            valid_min_windows: 4.0,
+            invalid_after: 3,
+            valid_after: 3,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StateConfig {
+    pub path: PathBuf,
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub can: CanConfig,
+    pub wheels: InputMessage,
+    pub acc: InputMessage,
+    pub gyro: InputMessage,
+    pub output: OutputMessage,
+    #[serde(default)]
+    pub leveling: Leveling,
+    pub state: StateConfig,
+    #[serde(default)]
+    pub estimator: EstimatorConfig,
+}
+
+/// A configuration problem, naming the file and the field or line.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config {path}: {msg}")]
+    Parse { path: PathBuf, msg: String },
+    #[error("config {path}: `{field}`: {msg}")]
+    Field {
+        path: PathBuf,
+        field: String,
+        msg: String,
+    },
+}
+
+/// The configuration shipped in `config/leveld.toml`, built in.
+pub const DEFAULT_TOML: &str = include_str!("../../config/leveld.toml");
+
+impl Config {
+    /// Read and check a config file; relative paths inside it are resolved against its folder.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.into(),
+            source,
+        })?;
+        Self::parse(path, &text)
+    }
+
+    pub fn parse(path: &Path, text: &str) -> Result<Self, ConfigError> {
+        let mut cfg: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.into(),
+            msg: e.to_string(),
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        if cfg.can.dbc.is_relative() {
+            cfg.can.dbc = base.join(&cfg.can.dbc);
+        }
+        if cfg.state.path.is_relative() {
+            cfg.state.path = base.join(&cfg.state.path);
+        }
+        cfg.validate(path)?;
+        Ok(cfg)
+    }
+
+    fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let field = |f: &str, msg: String| ConfigError::Field {
+            path: path.into(),
+            field: f.into(),
+            msg,
+        };
+        for (name, m, n) in [
+            ("wheels", &self.wheels, 4),
+            ("acc", &self.acc, 3),
+            ("gyro", &self.gyro, 3),
+        ] {
+            if m.signals.len() != n {
+                return Err(field(
+                    &format!("{name}.signals"),
+                    format!("needs {n} signal names, found {}", m.signals.len()),
+                ));
+            }
+            if m.counter.len() > 2 || m.checksum.len() > 2 {
+                return Err(field(
+                    &format!("{name}.counter/checksum"),
+                    "at most two parts each".into(),
+                ));
+            }
+            if m.checksum_kind != ChecksumKind::None && m.checksum.is_empty() {
+                return Err(field(
+                    &format!("{name}.checksum"),
+                    "name the checksum signal(s) for this checksum_kind".into(),
+                ));
+            }
+            if m.timeout_ms == Some(0) {
+                return Err(field(
+                    &format!("{name}.timeout_ms"),
+                    "must be greater than 0".into(),
+                ));
+            }
+        }
+        if self.can.input_interfaces.is_empty() {
+            return Err(field(
+                "can.input_interfaces",
+                "name at least one interface".into(),
+            ));
+        }
+        if !(10..=10_000).contains(&self.output.period_ms) {
+            return Err(field("output.period_ms", "choose 10..10000 ms".into()));
+        }
+        let l = &self.leveling;
+        if !(l.actuator_min_deg < l.actuator_max_deg)
+            || !l.actuator_min_deg.is_finite()
+            || !l.actuator_max_deg.is_finite()
+        {
+            return Err(field(
+                "leveling.actuator_min_deg",
+                "must be finite and below actuator_max_deg".into(),
+            ));
+        }
+        if !l.reference_pitch_deg.is_finite() || l.reference_pitch_deg.abs() > 10.0 {
+            return Err(field(
+                "leveling.reference_pitch_deg",
+                "must be within +-10 deg".into(),
+            ));
+        }
+        if l.invalid_after == 0 || l.valid_after == 0 {
+            return Err(field("leveling.invalid_after", "must be at least 1".into()));
+        }
+        self.estimator
+            .validate()
+            .map_err(|e| field(&format!("estimator.{}", e.field), e.to_string()))?;
+        Ok(())
+    }
+}
