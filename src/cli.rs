@@ -41,6 +41,11 @@ pub enum Command {
         #[arg(long)]
         strict: bool,
     },
+    /// Run the daemon on SocketCAN (systemd: Type=notify).
+    Run {
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Validate the config and its DBC, and print what will be decoded.
     CheckConfig {
         #[arg(long)]
@@ -111,6 +116,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             format == Format::Json,
             strict,
         ),
+        Command::Run { config } => crate::daemon::live::run(config.as_deref()),
         Command::CheckConfig { config } => crate::report::check_config(config.as_deref()),
         Command::Simulate { what } => match what {
             SimulateCmd::Drive {

@@ -2,6 +2,17 @@ use clap::Parser;
 
 fn main() {
     let cli = leveld::cli::Cli::parse();
+    // Logs go to stderr; under systemd the journal adds its own timestamps.
+    let filter =
+        tracing_subscriber::EnvFilter::try_from_env("LEVELD_LOG").unwrap_or_else(|_| "info".into());
+    let fmt = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    if std::env::var_os("JOURNAL_STREAM").is_some() {
+        fmt.without_time().with_ansi(false).init();
+    } else {
+        fmt.init();
+    }
     match leveld::cli::run(cli) {
         Ok(code) => std::process::exit(code),
         Err(e) => {

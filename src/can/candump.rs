@@ -47,6 +47,50 @@ impl LogFrame {
     }
 }
 
+impl embedded_can::Frame for LogFrame {
+    fn new(id: impl Into<embedded_can::Id>, data: &[u8]) -> Option<Self> {
+        if data.len() > 8 {
+            return None;
+        }
+        let (raw, ext) = match id.into() {
+            embedded_can::Id::Standard(s) => (s.as_raw() as u32, false),
+            embedded_can::Id::Extended(e) => (e.as_raw(), true),
+        };
+        Some(LogFrame::new(0.0, "", raw, ext, data))
+    }
+    fn new_remote(id: impl Into<embedded_can::Id>, dlc: usize) -> Option<Self> {
+        let mut f = <Self as embedded_can::Frame>::new(id, &[])?;
+        f.remote = true;
+        f.len = dlc.min(8) as u8;
+        Some(f)
+    }
+    fn is_extended(&self) -> bool {
+        self.extended
+    }
+    fn is_remote_frame(&self) -> bool {
+        self.remote
+    }
+    fn id(&self) -> embedded_can::Id {
+        if self.extended {
+            embedded_can::ExtendedId::new(self.id).map_or(
+                embedded_can::Id::Standard(embedded_can::StandardId::ZERO),
+                embedded_can::Id::Extended,
+            )
+        } else {
+            embedded_can::StandardId::new(self.id as u16).map_or(
+                embedded_can::Id::Standard(embedded_can::StandardId::ZERO),
+                embedded_can::Id::Standard,
+            )
+        }
+    }
+    fn dlc(&self) -> usize {
+        self.len as usize
+    }
+    fn data(&self) -> &[u8] {
+        if self.remote { &[] } else { self.payload() }
+    }
+}
+
 /// What a line held.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Line {

@@ -2,8 +2,10 @@
 //! replays, persisted state.
 
 pub mod config;
+pub mod live;
 pub mod pipeline;
 pub mod replay;
+pub mod state;
 
 use crate::can::dbc::Database;
 use anyhow::{Context, Result};

@@ -575,6 +575,20 @@ impl Pipeline {
         }
     }
 
+    /// Handle one received frame (any `embedded_can::Frame`) stamped `t_s`.
+    pub fn on_can_frame<F: embedded_can::Frame>(&mut self, t_s: f64, f: &F, sink: &mut dyn Sink) {
+        if f.is_remote_frame() {
+            self.tick(t_s, sink);
+            self.ignored_frames += 1;
+            return;
+        }
+        let (id, ext) = match f.id() {
+            embedded_can::Id::Standard(id) => (id.as_raw() as u32, false),
+            embedded_can::Id::Extended(id) => (id.as_raw(), true),
+        };
+        self.on_frame(t_s, id, ext, f.data(), sink);
+    }
+
     /// Handle one received frame stamped `t_s`.
     pub fn on_frame(
         &mut self,

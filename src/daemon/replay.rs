@@ -162,12 +162,13 @@ pub fn replay<'a>(
                     continue;
                 }
                 nframes += 1;
-                if f.remote || f.fd {
+                if f.fd {
+                    // CAN FD frames are not among the inputs.
                     p.tick(f.t_s, &mut sink);
                     p.ignored_frames += 1;
                     continue;
                 }
-                p.on_frame(f.t_s, f.id, f.extended, f.payload(), &mut sink);
+                p.on_can_frame(f.t_s, &f, &mut sink);
             }
             Err(e) => {
                 malformed += 1;

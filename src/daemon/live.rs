@@ -1,0 +1,348 @@
+//! `leveld run`: the pipeline on SocketCAN under systemd.
+//!
+//! Frames carry their kernel receive time (SO_TIMESTAMPNS); that is the pipeline's
+//! clock. When the bus is silent a 10 ms timer advances the clock from the same
+//! realtime base, 20 ms behind, so that frames already stamped but not yet read are
+//! handled first. Interfaces that vanish are reopened with backoff; sends never block.
+
+use super::pipeline::{Notice, Pipeline, Sink};
+use super::state::{self, Loaded, PersistedState};
+use super::{ConfigSource, load};
+use crate::estimator::Event;
+use anyhow::{Context, Result};
+use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
+use futures_util::stream::{SelectAll, StreamExt};
+use socketcan::tokio::CanSocket;
+use socketcan::{CanFilter, CanFrame, SocketOptions};
+use std::path::Path;
+use std::pin::Pin;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+const CAN_ERR_CRTL: u32 = 0x0000_0004;
+const CAN_ERR_BUSOFF: u32 = 0x0000_0040;
+const CAN_ERR_RESTARTED: u32 = 0x0000_0100;
+const CAN_ERR_CRTL_RX_PASSIVE: u8 = 0x10;
+const CAN_ERR_CRTL_TX_PASSIVE: u8 = 0x20;
+/// Clock hold-back of the idle timer, s.
+const HOLD_BACK_S: f64 = 0.02;
+
+fn secs(t: SystemTime) -> f64 {
+    t.duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Counters of the live loop.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct LiveStats {
+    pub sent: u64,
+    pub send_dropped: u64,
+    pub reconnects: u64,
+    pub bus_off: u64,
+    pub error_passive: u64,
+}
+
+struct LiveSink<'a> {
+    out: Option<&'a CanSocket>,
+    stats: &'a mut LiveStats,
+    lost_output: bool,
+}
+
+impl Sink for LiveSink<'_> {
+    fn event(&mut self, e: &Event) {
+        match e {
+            Event::WindowAccepted { window, estimate } => tracing::info!(
+                condition = ?window.condition,
+                imu_pitch_deg = window.imu_pitch_deg,
+                road_slope_deg = window.road_slope_deg,
+                road_to_body_deg = window.road_to_body_deg,
+                estimate_deg = estimate.road_to_body_deg,
+                std_err_deg = estimate.std_err_deg,
+                "window accepted"
+            ),
+            Event::WindowRejected {
+                condition, reason, ..
+            } => tracing::info!(?condition, ?reason, "window rejected"),
+            Event::LoadChanged { delta_deg, .. } => {
+                tracing::info!(delta_deg, "load change at standstill")
+            }
+            other => tracing::debug!(?other),
+        }
+    }
+    fn notice(&mut self, n: &Notice) {
+        tracing::warn!(?n, "input");
+    }
+    fn frame(&mut self, _t_s: f64, id: u32, extended: bool, data: &[u8; 8]) {
+        let Some(sock) = self.out else {
+            self.stats.send_dropped += 1;
+            return;
+        };
+        let id = if extended {
+            ExtendedId::new(id).map(Id::Extended)
+        } else {
+            StandardId::new(id as u16).map(Id::Standard)
+        };
+        let Some(frame) = id.and_then(|id| CanFrame::new(id, data)) else {
+            return;
+        };
+        match sock.try_write_frame(frame) {
+            Ok(()) => self.stats.sent += 1,
+            Err(e) => {
+                // ENOBUFS / EAGAIN: the queue is full; drop rather than wait.
+                self.stats.send_dropped += 1;
+                if !matches!(e.raw_os_error(), Some(libc::ENOBUFS) | Some(libc::EAGAIN)) {
+                    self.lost_output = true;
+                }
+            }
+        }
+    }
+}
+
+type FrameStream =
+    Pin<Box<dyn futures_util::Stream<Item = (usize, std::io::Result<(CanFrame, SystemTime)>)>>>;
+
+fn open_input(iface: &str, ids: &[(u32, bool)]) -> std::io::Result<CanSocket> {
+    let s = CanSocket::open(iface)?;
+    let filters: Vec<CanFilter> = ids
+        .iter()
+        .map(|&(id, ext)| {
+            if ext {
+                CanFilter::new(
+                    id | libc::CAN_EFF_FLAG,
+                    libc::CAN_EFF_MASK | libc::CAN_EFF_FLAG | libc::CAN_RTR_FLAG,
+                )
+            } else {
+                CanFilter::new(
+                    id,
+                    libc::CAN_SFF_MASK | libc::CAN_EFF_FLAG | libc::CAN_RTR_FLAG,
+                )
+            }
+        })
+        .collect();
+    s.set_filters(&filters)?;
+    s.set_error_filter(CAN_ERR_BUSOFF | CAN_ERR_CRTL | CAN_ERR_RESTARTED)?;
+    s.set_recv_timestamp(true)?;
+    Ok(s)
+}
+
+fn open_all(
+    cfg: &super::config::Config,
+    ids: &[(u32, bool)],
+) -> std::io::Result<(SelectAll<FrameStream>, CanSocket)> {
+    let mut all = SelectAll::new();
+    for (i, iface) in cfg.can.input_interfaces.iter().enumerate() {
+        let s = open_input(iface, ids)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{iface}: {e}")))?;
+        let st: FrameStream = Box::pin(futures_util::stream::unfold(s, move |s| async move {
+            let r = s.read_frame_with_timestamp().await;
+            Some(((i, r), s))
+        }));
+        all.push(st);
+    }
+    let out = CanSocket::open(&cfg.can.output_interface)
+        .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", cfg.can.output_interface)))?;
+    out.set_filter_drop_all()?;
+    Ok((all, out))
+}
+
+/// Restore persisted state into the pipeline.
+pub fn restore(p: &mut Pipeline, path: &Path) {
+    match state::load(path) {
+        Loaded::State(st) => {
+            if let Some(r) = st.reference_pitch_deg {
+                p.set_reference_pitch_deg(r);
+            }
+            match p.restore(&st.estimator) {
+                Ok(()) => {
+                    tracing::info!(path = %path.display(), estimate = ?p.estimate(), "state restored")
+                }
+                Err(e) => {
+                    let moved = state::move_aside(path);
+                    tracing::warn!(path = %path.display(), moved_to = ?moved, "state not usable ({e}); starting fresh");
+                }
+            }
+        }
+        Loaded::Missing => tracing::info!(path = %path.display(), "no saved state; first start"),
+        Loaded::Corrupt { reason, moved_to } => {
+            tracing::warn!(path = %path.display(), ?moved_to, "state file unusable ({reason}); moved aside, starting fresh")
+        }
+    }
+}
+
+fn persisted(p: &Pipeline, reference: Option<f64>) -> PersistedState {
+    PersistedState {
+        format: PersistedState::FORMAT,
+        estimator: p.est.state(),
+        reference_pitch_deg: reference,
+    }
+}
+
+fn notify(states: &[sd_notify::NotifyState]) {
+    if let Err(e) = sd_notify::notify(states) {
+        tracing::debug!("sd_notify: {e}");
+    }
+}
+
+/// `leveld run`.
+pub fn run(config: Option<&Path>) -> Result<i32> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the runtime")?;
+    rt.block_on(run_async(config))
+}
+
+async fn run_async(config: Option<&Path>) -> Result<i32> {
+    let (cfg, db, src) = load(config)?;
+    if let ConfigSource::BuiltIn = src {
+        tracing::warn!(
+            "no config given and {} missing: using the built-in default",
+            super::SYSTEM_CONFIG
+        );
+    }
+    let mut p = Pipeline::new(&cfg, &db)?;
+    let state_path = cfg.state.path.clone();
+    restore(&mut p, &state_path);
+    let reference = match state::load(&state_path) {
+        Loaded::State(s) => s.reference_pitch_deg,
+        _ => None,
+    };
+    let ids = p.input_ids();
+    let mut stats = LiveStats::default();
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
+    let mut tick = tokio::time::interval(Duration::from_millis(10));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let wd = sd_notify::watchdog_enabled();
+    let mut watchdog = tokio::time::interval(wd.map_or(Duration::from_secs(3600), |d| d / 2));
+    let mut status_every = tokio::time::interval(Duration::from_secs(5));
+    let mut backoff = Duration::from_millis(100);
+    let mut ready_sent = false;
+    let mut last_status = None;
+
+    loop {
+        let (mut frames, out) = match open_all(&cfg, &ids) {
+            Ok(x) => {
+                if stats.reconnects > 0 || !ready_sent {
+                    tracing::info!(inputs = ?cfg.can.input_interfaces, output = %cfg.can.output_interface, "CAN open");
+                }
+                backoff = Duration::from_millis(100);
+                x
+            }
+            Err(e) => {
+                tracing::warn!("cannot open CAN ({e}); retrying in {:?}", backoff);
+                if !ready_sent {
+                    notify(&[sd_notify::NotifyState::Ready]);
+                    ready_sent = true;
+                }
+                notify(&[sd_notify::NotifyState::Status(&format!(
+                    "waiting for CAN: {e}"
+                ))]);
+                let deadline = tokio::time::sleep(backoff);
+                tokio::pin!(deadline);
+                loop {
+                    tokio::select! {
+                        _ = &mut deadline => break,
+                        _ = tick.tick() => {
+                            let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
+                            p.tick(secs(SystemTime::now()) - HOLD_BACK_S, &mut sink);
+                        }
+                        _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
+                        _ = sigterm.recv() => return shutdown(&p, &state_path, reference),
+                        _ = sigint.recv() => return shutdown(&p, &state_path, reference),
+                    }
+                }
+                backoff = (backoff * 2).min(Duration::from_secs(5));
+                stats.reconnects += 1;
+                continue;
+            }
+        };
+        if !ready_sent {
+            notify(&[sd_notify::NotifyState::Ready]);
+            ready_sent = true;
+        }
+        let mut bus_off = false;
+        let reason = loop {
+            tokio::select! {
+                item = frames.next() => {
+                    let Some((_, r)) = item else { break "no input stream".to_string() };
+                    match r {
+                        Ok((CanFrame::Data(f), ts)) => {
+                            let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
+                            p.on_can_frame(secs(ts), &f, &mut sink);
+                            if sink.lost_output { break "output socket failed".to_string() }
+                        }
+                        Ok((CanFrame::Remote(_), _)) => {}
+                        Ok((CanFrame::Error(e), _)) => {
+                            let bits = e.error_bits();
+                            let d = e.data();
+                            if bits & CAN_ERR_BUSOFF != 0 {
+                                stats.bus_off += 1;
+                                bus_off = true;
+                                p.set_fault(true);
+                                tracing::error!("bus off: status FAULT until the controller restarts");
+                            }
+                            if bits & CAN_ERR_RESTARTED != 0 && bus_off {
+                                bus_off = false;
+                                p.set_fault(false);
+                                tracing::info!("controller restarted after bus off");
+                            }
+                            if bits & CAN_ERR_CRTL != 0 && d.len() > 1 && d[1] & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE) != 0 {
+                                stats.error_passive += 1;
+                                tracing::warn!("controller error-passive");
+                            }
+                        }
+                        Err(e) => break format!("read failed: {e}"),
+                    }
+                    if p.dirty {
+                        p.dirty = false;
+                        if let Err(e) = state::save(&state_path, &persisted(&p, reference)) {
+                            tracing::error!(path = %state_path.display(), "cannot save state: {e}");
+                        }
+                    }
+                }
+                _ = tick.tick() => {
+                    let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
+                    p.tick(secs(SystemTime::now()) - HOLD_BACK_S, &mut sink);
+                    if sink.lost_output { break "output socket failed".to_string() }
+                }
+                _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
+                _ = status_every.tick() => {
+                    let st = p.status();
+                    let text = match p.estimate() {
+                        Some(e) => format!("{st:?}: road-to-body {:+.2} deg +- {:.2} ({} windows); sent {}, dropped {}", e.road_to_body_deg, e.std_err_deg, e.windows, stats.sent, stats.send_dropped),
+                        None => format!("{st:?}: no estimate yet; sent {}, dropped {}", stats.sent, stats.send_dropped),
+                    };
+                    notify(&[sd_notify::NotifyState::Status(&text)]);
+                    if last_status != Some(st) {
+                        tracing::info!(status = ?st, "status");
+                        last_status = Some(st);
+                    }
+                }
+                _ = sigterm.recv() => return shutdown(&p, &state_path, reference),
+                _ = sigint.recv() => return shutdown(&p, &state_path, reference),
+            }
+        };
+        tracing::warn!("CAN lost ({reason}); reconnecting");
+        notify(&[sd_notify::NotifyState::Status(&format!(
+            "CAN lost: {reason}; reconnecting"
+        ))]);
+        stats.reconnects += 1;
+        drop(frames);
+        drop(out);
+        tokio::time::sleep(backoff).await;
+    }
+}
+
+fn shutdown(p: &Pipeline, path: &Path, reference: Option<f64>) -> Result<i32> {
+    notify(&[sd_notify::NotifyState::Stopping]);
+    match state::save(path, &persisted(p, reference)) {
+        Ok(()) => {
+            tracing::info!(path = %path.display(), status = ?p.status(), "state saved; exiting");
+            Ok(0)
+        }
+        Err(e) => {
+            tracing::error!(path = %path.display(), "cannot save state at shutdown: {e}");
+            Ok(1)
+        }
+    }
+}

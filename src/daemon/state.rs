@@ -1,0 +1,179 @@
+//! Persisted state: the estimator's evidence and the end-of-line reference pitch.
+//!
+//! Saved atomically (temp file, fsync, rename, fsync of the folder). A file that cannot
+//! be read back is moved aside, never deleted, and leveld starts fresh.
+
+use crate::estimator::EstimatorState;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PersistedState {
+    pub format: u32,
+    pub estimator: EstimatorState,
+    /// Road-to-body pitch measured by `leveld calibrate` on a level floor, deg.
+    pub reference_pitch_deg: Option<f64>,
+}
+
+impl PersistedState {
+    pub const FORMAT: u32 = 1;
+}
+
+/// What loading found.
+#[derive(Debug)]
+pub enum Loaded {
+    State(Box<PersistedState>),
+    /// No file yet: a first start.
+    Missing,
+    /// Unreadable or incompatible: moved to `moved_to`; start fresh.
+    Corrupt {
+        reason: String,
+        moved_to: Option<PathBuf>,
+    },
+}
+
+/// Load the state file; a bad file is moved aside (`<name>.corrupt-<n>`).
+pub fn load(path: &Path) -> Loaded {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Loaded::Missing,
+        Err(e) => {
+            return Loaded::Corrupt {
+                reason: format!("cannot read {}: {e}", path.display()),
+                moved_to: None,
+            };
+        }
+    };
+    let reason = match serde_json::from_slice::<PersistedState>(&bytes) {
+        Ok(st) if st.format != PersistedState::FORMAT => {
+            format!(
+                "format {} is not the supported {}",
+                st.format,
+                PersistedState::FORMAT
+            )
+        }
+        Ok(st) => match st.reference_pitch_deg {
+            Some(r) if !r.is_finite() || r.abs() > 10.0 => {
+                format!("reference pitch {r} is implausible")
+            }
+            _ => return Loaded::State(Box::new(st)),
+        },
+        Err(e) => format!("not valid state JSON: {e}"),
+    };
+    Loaded::Corrupt {
+        moved_to: move_aside(path),
+        reason,
+    }
+}
+
+/// Move a bad file to the first free `<name>.corrupt-<n>`.
+pub fn move_aside(path: &Path) -> Option<PathBuf> {
+    for n in 1..1000 {
+        let mut name = path.file_name()?.to_os_string();
+        name.push(format!(".corrupt-{n}"));
+        let to = path.with_file_name(name);
+        if !to.exists() {
+            return std::fs::rename(path, &to).ok().map(|_| to);
+        }
+    }
+    None
+}
+
+/// Write the state atomically.
+pub fn save(path: &Path, st: &PersistedState) -> std::io::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir)?;
+    let mut tmp_name = path.file_name().unwrap_or_default().to_os_string();
+    tmp_name.push(".tmp");
+    let tmp = path.with_file_name(tmp_name);
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        serde_json::to_writer_pretty(&mut f, st).map_err(std::io::Error::other)?;
+        f.write_all(b"\n")?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)?;
+    // Make the rename itself durable.
+    std::fs::File::open(dir)?.sync_all()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::{Estimator, EstimatorConfig};
+
+    fn tmpdir(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("leveld-state-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn sample() -> PersistedState {
+        PersistedState {
+            format: PersistedState::FORMAT,
+            estimator: Estimator::new(EstimatorConfig::default()).unwrap().state(),
+            reference_pitch_deg: Some(0.42),
+        }
+    }
+
+    #[test]
+    fn round_trip() {
+        let d = tmpdir("rt");
+        let p = d.join("state.json");
+        save(&p, &sample()).unwrap();
+        match load(&p) {
+            Loaded::State(s) => assert_eq!(*s, sample()),
+            other => panic!("{other:?}"),
+        }
+        assert!(!d.join("state.json.tmp").exists());
+    }
+
+    #[test]
+    fn corrupt_file_is_moved_aside_not_deleted() {
+        let d = tmpdir("corrupt");
+        let p = d.join("state.json");
+        std::fs::write(&p, b"{ this is not json").unwrap();
+        match load(&p) {
+            Loaded::Corrupt {
+                reason,
+                moved_to: Some(to),
+            } => {
+                assert!(reason.contains("not valid state JSON"), "{reason}");
+                assert_eq!(std::fs::read(&to).unwrap(), b"{ this is not json");
+                assert!(!p.exists());
+            }
+            other => panic!("{other:?}"),
+        }
+        // A second bad file gets the next free name.
+        std::fs::write(&p, b"[]").unwrap();
+        match load(&p) {
+            Loaded::Corrupt {
+                moved_to: Some(to), ..
+            } => assert!(to.to_string_lossy().ends_with(".corrupt-2")),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn other_format_is_incompatible() {
+        let d = tmpdir("fmt");
+        let p = d.join("state.json");
+        let mut s = sample();
+        s.format = 99;
+        std::fs::write(&p, serde_json::to_vec(&s).unwrap()).unwrap();
+        assert!(matches!(load(&p), Loaded::Corrupt { .. }));
+    }
+
+    #[test]
+    fn missing_is_a_first_start() {
+        assert!(matches!(
+            load(&tmpdir("none").join("state.json")),
+            Loaded::Missing
+        ));
+    }
+}
