@@ -46,6 +46,26 @@ pub enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// End-of-line calibration: on a level floor at standstill, store the reference pitch.
+    Calibrate {
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Calibrate from a candump log instead of the live bus.
+        #[arg(long)]
+        log: Option<PathBuf>,
+        /// With --log: only frames from this interface.
+        #[arg(long)]
+        interface: Option<String>,
+        /// Seconds of settled standstill to average.
+        #[arg(long, default_value_t = 5.0)]
+        duration: f64,
+        /// State file to write (default: the config's).
+        #[arg(long)]
+        state: Option<PathBuf>,
+        /// Measure and print, store nothing.
+        #[arg(long)]
+        dry_run: bool,
+    },
     /// Validate the config and its DBC, and print what will be decoded.
     CheckConfig {
         #[arg(long)]
@@ -117,6 +137,21 @@ pub fn run(cli: Cli) -> Result<i32> {
             strict,
         ),
         Command::Run { config } => crate::daemon::live::run(config.as_deref()),
+        Command::Calibrate {
+            config,
+            log,
+            interface,
+            duration,
+            state,
+            dry_run,
+        } => crate::report::calibrate(
+            config.as_deref(),
+            log.as_deref(),
+            interface.as_deref(),
+            duration,
+            state.as_deref(),
+            dry_run,
+        ),
         Command::CheckConfig { config } => crate::report::check_config(config.as_deref()),
         Command::Simulate { what } => match what {
             SimulateCmd::Drive {

@@ -346,3 +346,43 @@ fn shutdown(p: &Pipeline, path: &Path, reference: Option<f64>) -> Result<i32> {
         }
     }
 }
+
+/// Live end-of-line calibration: read the bus until a standstill has settled.
+pub fn calibrate_live(
+    cfg: &super::config::Config,
+    p: &mut Pipeline,
+    duration_s: f64,
+) -> Result<super::calibrate::Calibration> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        let ids = p.input_ids();
+        let (mut frames, _out) = open_all(cfg, &ids).context("opening CAN for calibration")?;
+        let mut stats = LiveStats::default();
+        let limit = tokio::time::sleep(Duration::from_secs_f64(duration_s + 30.0));
+        tokio::pin!(limit);
+        let mut best = None;
+        loop {
+            tokio::select! {
+                item = frames.next() => {
+                    let Some((_, r)) = item else { anyhow::bail!("CAN input ended") };
+                    if let Ok((CanFrame::Data(f), ts)) = r {
+                        let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
+                        p.on_can_frame(secs(ts), &f, &mut sink);
+                        if let Some((pitch, settled)) = p.est.standstill_pitch() {
+                            best = Some(settled);
+                            if settled >= duration_s {
+                                return Ok(super::calibrate::Calibration { reference_pitch_deg: pitch, settled_s: settled });
+                            }
+                        }
+                    }
+                }
+                _ = &mut limit => anyhow::bail!(
+                    "no settled standstill of {duration_s:.1} s within {:.0} s (best {:.1} s): keep the vehicle still with the wheels stopped",
+                    duration_s + 30.0, best.unwrap_or(0.0)
+                ),
+            }
+        }
+    })
+}

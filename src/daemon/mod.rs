@@ -1,6 +1,7 @@
 //! The daemon side: configuration, the frame pipeline shared by live runs and
 //! replays, persisted state.
 
+pub mod calibrate;
 pub mod config;
 pub mod live;
 pub mod pipeline;

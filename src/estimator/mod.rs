@@ -275,6 +275,25 @@ impl Estimator {
         self.bias_rps.map(|b| b.map(f64::to_degrees).into())
     }
 
+    /// Settled standstill reference: IMU pitch from gravity (deg) and the seconds of
+    /// settled samples behind it. `None` while moving or before anything settled.
+    pub fn standstill_pitch(&self) -> Option<(f64, f64)> {
+        let st = self.standstill?;
+        if st.seg_n < 5 {
+            return None;
+        }
+        Some((pitch_from(&st.mean())?.to_degrees(), st.settled_s()))
+    }
+
+    /// End-of-line calibration on a level floor: the IMU pitch is the road-to-body
+    /// pitch. Seeds the estimate with it, worth `weight` windows, and makes it the load
+    /// baseline.
+    pub fn seed_calibration(&mut self, road_to_body_deg: f64, weight: f64) {
+        self.avg.restore_prior(road_to_body_deg, weight, 0);
+        self.baseline_pitch_rad = Some(road_to_body_deg.to_radians());
+        self.refresh_estimate();
+    }
+
     /// Snapshot for persistence.
     pub fn state(&self) -> EstimatorState {
         EstimatorState {

@@ -1,0 +1,88 @@
+//! `leveld calibrate`: end-of-line reference pitch on a level floor.
+//!
+//! The vehicle stands on a level floor, so the road-to-body pitch equals the IMU
+//! pitch from gravity. The pipeline runs until a standstill has settled for the
+//! requested time; the result is stored in the state file as the reference pitch and
+//! seeds the estimate.
+
+use super::pipeline::{Notice, Pipeline, Sink};
+use super::state::{self, Loaded, PersistedState};
+use crate::can::candump::{Line, parse_line};
+use crate::estimator::Event;
+use anyhow::{Context, Result, bail};
+use std::io::BufRead;
+use std::path::Path;
+
+struct Quiet;
+impl Sink for Quiet {
+    fn event(&mut self, _: &Event) {}
+    fn notice(&mut self, n: &Notice) {
+        tracing::warn!(?n, "input");
+    }
+    fn frame(&mut self, _: f64, _: u32, _: bool, _: &[u8; 8]) {}
+}
+
+/// Result of a calibration.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Calibration {
+    pub reference_pitch_deg: f64,
+    pub settled_s: f64,
+}
+
+/// Feed a log until the standstill has settled for `duration_s`.
+pub fn from_log(
+    p: &mut Pipeline,
+    input: &mut dyn BufRead,
+    interface: Option<&str>,
+    duration_s: f64,
+) -> Result<Calibration> {
+    let mut line = String::new();
+    let mut best: Option<Calibration> = None;
+    while input.read_line(&mut line).context("reading the log")? > 0 {
+        if let Ok(Line::Frame(f)) = parse_line(&line) {
+            if interface.is_none_or(|i| i == f.iface()) && !f.fd {
+                p.on_can_frame(f.t_s, &f, &mut Quiet);
+                if let Some((pitch, settled)) = p.est.standstill_pitch() {
+                    best = Some(Calibration {
+                        reference_pitch_deg: pitch,
+                        settled_s: settled,
+                    });
+                    if settled >= duration_s {
+                        return Ok(best.unwrap_or(Calibration {
+                            reference_pitch_deg: pitch,
+                            settled_s: settled,
+                        }));
+                    }
+                }
+            }
+        }
+        line.clear();
+    }
+    match best {
+        Some(c) => bail!(
+            "the vehicle was still for only {:.1} s of the {duration_s:.1} s needed; record a longer standstill",
+            c.settled_s
+        ),
+        None => bail!(
+            "no standstill found: the wheels must read zero and the IMU be still (check that WHL_SPD11, IMU_ACC and IMU_GYR are in the log)"
+        ),
+    }
+}
+
+/// Store a calibration: reference pitch and a seeded estimate.
+pub fn store(p: &mut Pipeline, path: &Path, cal: &Calibration) -> Result<()> {
+    let weight = 4.0;
+    if let Loaded::Corrupt { reason, moved_to } = state::load(path) {
+        tracing::warn!(
+            ?moved_to,
+            "previous state unusable ({reason}); replaced by the calibration"
+        );
+    }
+    p.est.seed_calibration(cal.reference_pitch_deg, weight);
+    let st = PersistedState {
+        format: PersistedState::FORMAT,
+        estimator: p.est.state(),
+        reference_pitch_deg: Some(cal.reference_pitch_deg),
+    };
+    state::save(path, &st).with_context(|| format!("saving the calibration to {}", path.display()))
+}

@@ -1,0 +1,372 @@
+//! Daemon behaviour without a bus: config and DBC errors, calibration, input loss,
+//! garbage frames, the systemd hardening bar.
+
+use leveld::can::candump::{Line, parse_line};
+use leveld::daemon::config::Config;
+use leveld::daemon::pipeline::{Notice, Pipeline, Sink, Status};
+use leveld::estimator::Event;
+use leveld::sim::canlog::{InputEncoder, write_candump};
+use leveld::sim::{Road, Scenario, Sensors, SpeedProfile, Vehicle};
+use std::path::PathBuf;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn reference_toml() -> String {
+    std::fs::read_to_string(root().join("config/leveld.toml")).unwrap()
+}
+
+fn tmp(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("leveld-daemon-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Write a config next to a copy of the reference DBC and try to load it.
+fn load_variant(
+    tag: &str,
+    toml: &str,
+    dbc: Option<&str>,
+) -> anyhow::Result<(
+    Config,
+    leveld::can::dbc::Database,
+    leveld::daemon::ConfigSource,
+)> {
+    let d = tmp(tag);
+    let dbc_text = dbc
+        .map(str::to_string)
+        .unwrap_or_else(|| std::fs::read_to_string(root().join("dbc/leveld.dbc")).unwrap());
+    std::fs::write(d.join("leveld.dbc"), dbc_text).unwrap();
+    let toml = toml.replace("dbc = \"../dbc/leveld.dbc\"", "dbc = \"leveld.dbc\"");
+    std::fs::write(d.join("leveld.toml"), toml).unwrap();
+    leveld::daemon::load(Some(&d.join("leveld.toml")))
+}
+
+fn err_of(r: anyhow::Result<impl std::fmt::Debug>) -> String {
+    format!("{:#}", r.expect_err("must fail"))
+}
+
+#[test]
+fn reference_config_and_dbc_load() {
+    let (cfg, db, _) = load_variant("ok", &reference_toml(), None).unwrap();
+    let p = Pipeline::new(&cfg, &db).unwrap();
+    assert_eq!(
+        p.input_ids(),
+        [(0x386, false), (0x3E0, false), (0x3E1, false)]
+    );
+    // Timeouts default to 10 x GenMsgCycleTime.
+    assert!((p.input_codec(0).timeout_s - 0.2).abs() < 1e-12);
+    assert!((p.input_codec(1).timeout_s - 0.1).abs() < 1e-12);
+}
+
+#[test]
+fn config_mistakes_name_the_file_and_field() {
+    let e = err_of(load_variant("syntax", "this is = = not toml", None));
+    assert!(e.contains("leveld.toml"), "{e}");
+    let e = err_of(load_variant(
+        "unknown",
+        &reference_toml().replace("[state]", "[state]\nbogus = 1"),
+        None,
+    ));
+    assert!(e.contains("bogus"), "{e}");
+    let e = err_of(load_variant(
+        "count",
+        &reference_toml().replace("\"IMU_AccX\", ", ""),
+        None,
+    ));
+    assert!(e.contains("acc.signals") && e.contains("needs 3"), "{e}");
+    let e = err_of(load_variant(
+        "est",
+        &(reference_toml() + "gyro_bias_alpha = 2.0\n"),
+        None,
+    ));
+    assert!(e.contains("gyro_bias_alpha"), "{e}");
+    let e = err_of(load_variant(
+        "act",
+        &reference_toml().replace("actuator_min_deg = -3.0", "actuator_min_deg = 5.0"),
+        None,
+    ));
+    assert!(e.contains("leveling.actuator_min_deg"), "{e}");
+}
+
+#[test]
+fn dbc_mistakes_are_clear() {
+    let (cfg, db, _) = load_variant(
+        "sig",
+        &reference_toml().replace("\"IMU_RateZ\"", "\"IMU_RateW\""),
+        None,
+    )
+    .unwrap();
+    let e = format!("{:#}", Pipeline::new(&cfg, &db).unwrap_err());
+    assert!(
+        e.contains("IMU_RateW") && e.contains("IMU_RateZ"),
+        "must name the missing and the known signals: {e}"
+    );
+    let (cfg, db, _) = load_variant(
+        "msg",
+        &reference_toml().replace("message = \"LEVELING\"", "message = \"LEVELLING\""),
+        None,
+    )
+    .unwrap();
+    let e = format!("{:#}", Pipeline::new(&cfg, &db).unwrap_err());
+    assert!(e.contains("LEVELLING"), "{e}");
+    let e = err_of(load_variant(
+        "dbcsyntax",
+        &reference_toml(),
+        Some("VERSION \"x\"\nBO_ 902 WHL_SPD11: 8 ESC\n SG_ broken"),
+    ));
+    assert!(
+        e.contains("leveld.dbc") && e.contains("does not parse"),
+        "{e}"
+    );
+}
+
+#[derive(Default)]
+struct Collect {
+    events: Vec<Event>,
+    notices: Vec<Notice>,
+    frames: Vec<(f64, [u8; 8])>,
+}
+
+impl Sink for Collect {
+    fn event(&mut self, e: &Event) {
+        self.events.push(*e);
+    }
+    fn notice(&mut self, n: &Notice) {
+        self.notices.push(*n);
+    }
+    fn frame(&mut self, t: f64, _: u32, _: bool, d: &[u8; 8]) {
+        self.frames.push((t, *d));
+    }
+}
+
+fn frames_of(sc: &Scenario) -> Vec<leveld::can::candump::LogFrame> {
+    let db = leveld::can::dbc::Database::load(&root().join("dbc/leveld.dbc")).unwrap();
+    let mut enc = InputEncoder::new(&db).unwrap();
+    let mut log = Vec::new();
+    write_candump(
+        &leveld::sim::simulate(sc),
+        &mut enc,
+        "vcan0",
+        100.0,
+        &mut log,
+    )
+    .unwrap();
+    String::from_utf8(log)
+        .unwrap()
+        .lines()
+        .map(|l| match parse_line(l) {
+            Ok(Line::Frame(f)) => f,
+            _ => panic!(),
+        })
+        .collect()
+}
+
+fn pipeline() -> Pipeline {
+    let (cfg, db, _) = leveld::daemon::load(Some(&root().join("config/leveld.toml"))).unwrap();
+    Pipeline::new(&cfg, &db).unwrap()
+}
+
+fn level_stand(seconds: f64, pitch: f64) -> Scenario {
+    Scenario {
+        speed: SpeedProfile::default().hold(seconds),
+        road: Road::default(),
+        load_pitch_deg: pitch,
+        load_changes: vec![],
+        vehicle: Vehicle::default(),
+        sensors: Sensors::default(),
+        seed: 4,
+    }
+}
+
+#[test]
+fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
+    let sc = level_stand(12.0, 0.6);
+    let mut log = Vec::new();
+    for f in frames_of(&sc) {
+        log.extend_from_slice(format!("{}\n", leveld::can::candump::CandumpLine(&f)).as_bytes());
+    }
+    let mut p = pipeline();
+    let cal = leveld::daemon::calibrate::from_log(&mut p, &mut &log[..], None, 5.0).unwrap();
+    // 5 s at 300 ug/sqrt(Hz): the mean is good to well under 0.01 deg.
+    assert!((cal.reference_pitch_deg - 0.6).abs() < 0.01, "{cal:?}");
+    let d = tmp("cal");
+    leveld::daemon::calibrate::store(&mut p, &d.join("state.json"), &cal).unwrap();
+    match leveld::daemon::state::load(&d.join("state.json")) {
+        leveld::daemon::state::Loaded::State(s) => {
+            assert_eq!(s.reference_pitch_deg, Some(cal.reference_pitch_deg))
+        }
+        other => panic!("{other:?}"),
+    }
+    // Too short a standstill is refused with a reason.
+    let short = level_stand(3.0, 0.6);
+    let mut log = Vec::new();
+    for f in frames_of(&short) {
+        log.extend_from_slice(format!("{}\n", leveld::can::candump::CandumpLine(&f)).as_bytes());
+    }
+    let e =
+        leveld::daemon::calibrate::from_log(&mut pipeline(), &mut &log[..], None, 5.0).unwrap_err();
+    assert!(e.to_string().contains("still for only"), "{e}");
+}
+
+fn multi_stop() -> Scenario {
+    leveld::sim::presets::preset("multi-stop", 5).unwrap()
+}
+
+fn status_of(p: &Pipeline, d: &[u8; 8]) -> Status {
+    Status::from_raw(p.output().decode(d).status).unwrap()
+}
+
+#[test]
+fn imu_loss_holds_the_value_and_recovers() {
+    let frames = frames_of(&multi_stop());
+    let (t_cut, t_back) = (100.0 + 150.0, 100.0 + 160.0);
+    let mut p = pipeline();
+    let mut sink = Collect::default();
+    for f in &frames {
+        if f.id != 0x386 && f.t_s > t_cut && f.t_s < t_back {
+            continue; // IMU frames stop for 10 s
+        }
+        p.on_can_frame(f.t_s, f, &mut sink);
+    }
+    let lost_at = sink.notices.iter().find_map(|n| match n {
+        Notice::InputLost {
+            t_s,
+            message: "acc",
+        } => Some(*t_s),
+        _ => None,
+    });
+    let lost_at = lost_at.expect("IMU loss must be noticed");
+    // Within the 100 ms timeout plus one output period.
+    assert!(
+        lost_at > t_cut && lost_at <= t_cut + 0.1 + 0.1 + 1e-6,
+        "{lost_at}"
+    );
+    let before: Vec<_> = sink.frames.iter().filter(|(t, _)| *t < t_cut).collect();
+    let during: Vec<_> = sink
+        .frames
+        .iter()
+        .filter(|(t, _)| *t > lost_at + 0.05 && *t < t_back)
+        .collect();
+    let after: Vec<_> = sink
+        .frames
+        .iter()
+        .filter(|(t, _)| *t > t_back + 1.0)
+        .collect();
+    assert!(!during.is_empty());
+    let held = p
+        .output()
+        .decode(&before.last().unwrap().1)
+        .road_to_body_deg;
+    for (t, d) in &during {
+        assert_eq!(status_of(&p, d), Status::HoldInputLost, "at {t}");
+        assert_eq!(
+            p.output().decode(d).road_to_body_deg,
+            held,
+            "the last value is held"
+        );
+    }
+    assert!(
+        after
+            .iter()
+            .all(|(_, d)| status_of(&p, d) != Status::HoldInputLost),
+        "it must recover"
+    );
+    assert!(
+        sink.notices
+            .iter()
+            .any(|n| matches!(n, Notice::InputRestored { message: "acc", .. }))
+    );
+}
+
+#[test]
+fn bad_crc_wrong_dlc_and_unknown_ids_are_counted_and_not_used() {
+    let frames = frames_of(&multi_stop());
+    let mut p = pipeline();
+    let mut sink = Collect::default();
+    let (mut bad_crc, mut bad_dlc, mut unknown) = (0, 0, 0);
+    for (i, f) in frames.iter().enumerate() {
+        let mut g = *f;
+        if f.id == 0x3E0 && i % 50 == 0 {
+            g.data[7] ^= 0x5A; // CRC no longer matches
+            bad_crc += 1;
+        }
+        if f.id == 0x3E1 && i % 77 == 0 {
+            g.len = 6;
+            bad_dlc += 1;
+        }
+        p.on_can_frame(g.t_s, &g, &mut sink);
+        if i % 10 == 0 {
+            let junk = leveld::can::candump::LogFrame::new(
+                f.t_s,
+                "vcan0",
+                0x123 + (i as u32 % 7),
+                false,
+                &[1, 2, 3],
+            );
+            p.on_can_frame(f.t_s, &junk, &mut sink);
+            unknown += 1;
+        }
+    }
+    let acc = p.stats(1);
+    let gyr = p.stats(2);
+    assert_eq!(acc.checksum_errors, bad_crc);
+    assert_eq!(gyr.dlc_errors, bad_dlc);
+    assert_eq!(p.ignored_frames, unknown);
+    // Isolated bad frames do not invalidate the message and the drive still converges.
+    assert!(p.estimate().is_some());
+    assert_eq!(p.status(), Status::Valid, "{:?}", p.estimate());
+}
+
+#[test]
+fn consecutive_checksum_failures_invalidate_the_message() {
+    let frames = frames_of(&multi_stop());
+    let mut p = pipeline();
+    let mut sink = Collect::default();
+    for f in &frames {
+        let mut g = *f;
+        if f.id == 0x386 && f.t_s > 130.0 && f.t_s < 131.0 {
+            g.data[0] ^= 1;
+        }
+        p.on_can_frame(g.t_s, &g, &mut sink);
+        if f.t_s > 130.2 && f.t_s < 130.9 {
+            assert_eq!(p.status(), Status::HoldInputLost);
+        }
+    }
+    assert!(sink.notices.iter().any(|n| matches!(
+        n,
+        Notice::MessageInvalid {
+            message: "wheels",
+            reason: "checksum",
+            ..
+        }
+    )));
+    assert_ne!(p.status(), Status::HoldInputLost);
+}
+
+#[test]
+fn systemd_unit_exposure_is_at_most_2() {
+    let unit = root().join("systemd/leveld.service");
+    let out = std::process::Command::new("systemd-analyze")
+        .args(["security", "--offline=true", "--no-pager"])
+        .arg(&unit)
+        .output()
+        .expect("systemd-analyze must be installed (tools/test-all.sh installs it)");
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text
+        .lines()
+        .find(|l| l.contains("Overall exposure level"))
+        .unwrap_or_else(|| panic!("{text}"));
+    let level: f64 = line
+        .split(':')
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(level <= 2.0, "{line}");
+}
