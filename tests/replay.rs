@@ -245,3 +245,88 @@ fn config_dbc_path_is_relative_to_the_config_file() {
         cfg.can.dbc
     );
 }
+
+/// Run python3 with cantools; the test command installs it.
+fn python(script: &str, args: &[&str]) -> String {
+    let out = std::process::Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("python3 must be installed (tools/test-all.sh installs it)");
+    assert!(
+        out.status.success(),
+        "python failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn reference_dbc_loads_in_cantools_strict_without_warnings() {
+    let dbc = root().join("dbc/leveld.dbc");
+    let out = python(
+        "import sys, warnings, cantools\nwarnings.simplefilter('error')\ndb = cantools.database.load_file(sys.argv[1], strict=True)\nprint(sorted((m.name, m.frame_id, m.cycle_time) for m in db.messages))",
+        &[dbc.to_str().unwrap()],
+    );
+    assert_eq!(
+        out.trim(),
+        "[('IMU_ACC', 992, 10), ('IMU_GYR', 993, 10), ('LEVELING', 1000, 100), ('WHL_SPD11', 902, 20)]"
+    );
+}
+
+#[test]
+fn cantools_decodes_the_output_log_as_leveld_does() {
+    let (log, _, _) = simulated("multi-stop", 11);
+    let (_, _, frames, p) = run(&log, &ReplayOptions::default());
+    let dir = std::env::temp_dir().join(format!("leveld-cantools-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("out.log");
+    std::fs::write(&path, &frames).unwrap();
+    let script = r#"
+import sys, cantools, json
+db = cantools.database.load_file(sys.argv[1], strict=True)
+m = db.get_message_by_name('LEVELING')
+for line in open(sys.argv[2]):
+    data = bytes.fromhex(line.split('#')[1].strip())
+    d = m.decode(data, decode_choices=False)
+    print(json.dumps([d[k] for k in ('RoadToBodyPitch', 'LevelCorrection', 'RoadSlope', 'EstimateCount', 'Status', 'Counter', 'CRC')]))
+"#;
+    let out = python(
+        script,
+        &[
+            root().join("dbc/leveld.dbc").to_str().unwrap(),
+            path.to_str().unwrap(),
+        ],
+    );
+    let theirs: Vec<Vec<f64>> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let ours: Vec<Vec<f64>> = String::from_utf8(frames)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let Ok(Line::Frame(f)) = parse_line(l) else {
+                panic!()
+            };
+            let v = p.output().decode(&f.payload().try_into().unwrap());
+            vec![
+                v.road_to_body_deg,
+                v.level_correction_deg,
+                v.road_slope_deg,
+                v.estimate_count as f64,
+                v.status as f64,
+                v.counter as f64,
+                v.crc as f64,
+            ]
+        })
+        .collect();
+    assert_eq!(theirs.len(), ours.len());
+    assert!(ours.len() > 1000);
+    for (a, b) in theirs.iter().zip(&ours) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() < 1e-9, "{a:?} vs {b:?}");
+        }
+    }
+}
