@@ -556,6 +556,53 @@ impl Estimator {
         lo
     }
 
+    /// Where the car came to rest, found walking back from the settled sample `from`
+    /// with the attitude carried by the gyro: a body rocking on its suspension at rest
+    /// only tilts gravity along x (its lever-arm acceleration is mostly vertical),
+    /// while braking shows fully in x. Returns the edge and the attitude there. The
+    /// search goes back at most 2 s before `floor`, the first quiet sample.
+    fn rocking_rest_edge(
+        &self,
+        q_ref: UnitQuaternion<f64>,
+        from: usize,
+        floor: usize,
+        g: f64,
+    ) -> (usize, UnitQuaternion<f64>) {
+        const AVG: usize = 5;
+        let tol = self.cfg.rest_acc_tol_mps2;
+        let lowest = floor.saturating_sub(200);
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let up = Vector3::new(0.0, 0.0, g);
+        let mut q = q_ref;
+        let mut res = [0.0f64; AVG];
+        let (mut edge, mut q_edge) = (from, q_ref);
+        let mut i = from;
+        let mut k = 0usize;
+        loop {
+            let x = self.hist.get(i);
+            res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x;
+            k += 1;
+            if k >= AVG {
+                if (res.iter().sum::<f64>() / AVG as f64).abs() > tol {
+                    break;
+                }
+                // The newest sample of this window is certainly at rest.
+                edge = i + AVG - 1;
+            }
+            if edge == i + AVG - 1 {
+                q_edge = self.carry(q, i, edge);
+            }
+            if i == 0 || i <= lowest {
+                break;
+            }
+            let (a, b) = (self.hist.get(i - 1), x);
+            let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
+            q = attitude::propagate(&q, &w, a.t_s - b.t_s);
+            i -= 1;
+        }
+        (edge.min(from), q_edge)
+    }
+
     /// Bias-corrected body rate at sample `i` from a local quadratic fit over +-10
     /// samples (Savitzky-Golay): the velocity of an IMU still rocking about the pitch
     /// centre at a walk start. A single sample's noise times a 2 m lever arm would cost
@@ -781,9 +828,14 @@ impl Estimator {
             self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
             return;
         }
-        let rest = self.index_at(st.t_rest_s);
-        let q0 = self.carry(q_ref, self.index_at(st.seg_first_s), rest);
-        let setup = self.window_setup(q0, self.gravity_mps2(st.mean().norm()));
+        let g = self.gravity_mps2(st.mean().norm());
+        let (rest, q0) = self.rocking_rest_edge(
+            q_ref,
+            self.index_at(st.seg_first_s),
+            self.index_at(st.t_rest_s),
+            g,
+        );
+        let setup = self.window_setup(q0, g);
         self.bwd.start(setup, self.mean_rate(rest));
         let mut result = None;
         for i in (0..=rest).rev() {
@@ -870,7 +922,7 @@ impl Estimator {
         let q0 = self.carry(q_ref, last_settled, first);
         let setup = self.window_setup(q0, self.gravity_mps2(g_mean.norm()));
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
-        let settled_at_start = st.settled_done && self.hist.get(first).t_s - st.seg_last_s < 1.0;
+        let settled_at_start = st.seg_n >= 5 && self.hist.get(first).t_s - st.seg_last_s < 1.0;
         let omega0 = if settled_at_start {
             Vector3::zeros()
         } else {
