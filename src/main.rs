@@ -5,11 +5,13 @@ fn main() {
     // Logs go to stderr; under systemd the journal adds its own timestamps.
     let filter =
         tracing_subscriber::EnvFilter::try_from_env("LEVELD_LOG").unwrap_or_else(|_| "info".into());
+    use std::io::IsTerminal;
     let fmt = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr);
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal());
     if std::env::var_os("JOURNAL_STREAM").is_some() {
-        fmt.without_time().with_ansi(false).init();
+        fmt.without_time().init();
     } else {
         fmt.init();
     }

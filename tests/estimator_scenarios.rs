@@ -154,3 +154,78 @@ fn load_step_at_standstill_is_followed_before_and_after_moving_off() {
     let truth = drive.truth.last().unwrap().load_pitch_deg;
     assert!((est.estimate().unwrap().road_to_body_deg - truth).abs() < 0.1);
 }
+
+/// A drive that starts and ends at rest on a constant grade.
+fn parked_drive(grade_deg: f64, load_pitch_deg: f64, seed: u64) -> Scenario {
+    let mut speed = SpeedProfile::default();
+    for _ in 0..3 {
+        speed = speed.stop_go(8.0, 2.0, 6.0, 3.0, 2.0);
+    }
+    Scenario {
+        speed: speed.hold(8.0),
+        road: Road::constant(grade_deg),
+        load_pitch_deg,
+        load_changes: vec![],
+        vehicle: Vehicle::default(),
+        sensors: Sensors::default(),
+        seed,
+    }
+}
+
+fn feed(est: &mut Estimator, sc: &Scenario) -> Vec<Event> {
+    let drive = simulate(sc);
+    let mut events = Vec::new();
+    for i in drive.merged() {
+        match i {
+            Input::Imu(s) => est.push_imu(s, &mut |e| events.push(e)),
+            Input::Wheels(w) => est.push_wheels(w, &mut |e| events.push(e)),
+        }
+    }
+    events
+}
+
+#[test]
+fn after_a_restart_a_different_grade_is_not_taken_for_a_load_change() {
+    // Parked on level ground; restarted (a crash, or a tow) on a 4 % grade with the same load.
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    feed(&mut est, &parked_drive(0.0, 0.5, 1));
+    let saved = est.state();
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    est.restore(&saved).unwrap();
+    let ev = feed(&mut est, &parked_drive(0.04f64.atan().to_degrees(), 0.5, 2));
+    assert!(
+        ev.iter()
+            .any(|e| matches!(e, Event::LoadChangeSuspected { .. })),
+        "the step must be noticed"
+    );
+    assert!(
+        !ev.iter().any(|e| matches!(e, Event::LoadChanged { .. })),
+        "and refuted by the windows"
+    );
+    assert!(
+        (est.estimate().unwrap().road_to_body_deg - 0.5).abs() < 0.1,
+        "{:?}",
+        est.estimate()
+    );
+}
+
+#[test]
+fn loading_while_parked_is_confirmed_by_the_first_window_after_restart() {
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    feed(&mut est, &parked_drive(0.0, 0.5, 3));
+    let saved = est.state();
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    est.restore(&saved).unwrap();
+    // Same place, boot loaded while off: the body pitches up by 1 deg.
+    let ev = feed(&mut est, &parked_drive(0.0, 1.5, 4));
+    let applied = ev.iter().find_map(|e| match e {
+        Event::LoadChanged { delta_deg, .. } => Some(*delta_deg),
+        _ => None,
+    });
+    assert!((applied.expect("confirmed load change") - 1.0).abs() < 0.05);
+    assert!(
+        (est.estimate().unwrap().road_to_body_deg - 1.5).abs() < 0.1,
+        "{:?}",
+        est.estimate()
+    );
+}

@@ -1,22 +1,37 @@
 #!/usr/bin/env bash
-# Every test of leveld: unit, simulation, replay and (where SocketCAN can be had) vcan.
+# Every test of leveld: unit, simulation, replay, and the vcan suite on a real
+# SocketCAN stack (this machine's kernel, or a small VM; see tools/vcan-vm.sh).
 # Installs what it needs on a fresh Debian machine; safe to run again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 need_apt=()
 command -v python3 >/dev/null || need_apt+=(python3 python3-pip)
 command -v systemd-analyze >/dev/null || need_apt+=(systemd)
-if [ ${#need_apt[@]} -gt 0 ] && [ "$(id -u)" = 0 ]; then
-  apt-get update -qq && apt-get install -y -qq "${need_apt[@]}"
+if [ ${#need_apt[@]} -gt 0 ]; then
+  as_root apt-get update -qq
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" >/dev/null
 fi
-# cantools is the independent decoder the DBC and codec tests compare against.
+# cantools is the independent decoder the DBC, codec and output tests compare against.
 if ! python3 -c 'import cantools' 2>/dev/null; then
   python3 -m pip install -q cantools 2>/dev/null || python3 -m pip install -q --break-system-packages cantools
 fi
 
+echo "== unit, simulation, replay and daemon tests"
 if command -v cargo-nextest >/dev/null 2>&1; then
   cargo nextest run --workspace --no-fail-fast
 else
   cargo test --workspace --no-fail-fast
 fi
+
+echo "== vcan suite: leveld run against canplayer and candump on a virtual CAN bus"
+bin=$(cargo test --test vcan --no-run --message-format=json 2>/dev/null | python3 -c '
+import json, sys
+for line in sys.stdin:
+    m = json.loads(line)
+    if m.get("reason") == "compiler-artifact" and m.get("target", {}).get("name") == "vcan" and m.get("executable"):
+        print(m["executable"])
+')
+[ -n "$bin" ] || { echo "cannot build the vcan test binary" >&2; exit 1; }
+tools/vcan-vm.sh "$bin" --ignored --test-threads=1

@@ -65,6 +65,17 @@ impl Sink for LiveSink<'_> {
             Event::LoadChanged { delta_deg, .. } => {
                 tracing::info!(delta_deg, "load change at standstill")
             }
+            Event::WheelsStopped { .. } => tracing::info!("wheels stopped"),
+            Event::LoadChangeSuspected { delta_deg, .. } => {
+                tracing::info!(
+                    delta_deg,
+                    "pitch step since the saved baseline; confirming with the next window"
+                )
+            }
+            Event::WheelsMoving { .. } => tracing::info!("wheels moving"),
+            Event::StandstillStarted { imu_pitch_deg, .. } => {
+                tracing::info!(imu_pitch_deg, "standstill")
+            }
             other => tracing::debug!(?other),
         }
     }
@@ -247,8 +258,8 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                             p.tick(secs(SystemTime::now()) - HOLD_BACK_S, &mut sink);
                         }
                         _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
-                        _ = sigterm.recv() => return shutdown(&p, &state_path, reference),
-                        _ = sigint.recv() => return shutdown(&p, &state_path, reference),
+                        _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats),
+                        _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats),
                     }
                 }
                 backoff = (backoff * 2).min(Duration::from_secs(5));
@@ -318,8 +329,8 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                         last_status = Some(st);
                     }
                 }
-                _ = sigterm.recv() => return shutdown(&p, &state_path, reference),
-                _ = sigint.recv() => return shutdown(&p, &state_path, reference),
+                _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats),
+                _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats),
             }
         };
         tracing::warn!("CAN lost ({reason}); reconnecting");
@@ -333,8 +344,35 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
     }
 }
 
-fn shutdown(p: &Pipeline, path: &Path, reference: Option<f64>) -> Result<i32> {
+/// One JSON line with what was received and sent, for logs and tests.
+pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
+    let names = p.message_names();
+    let mut messages = serde_json::Map::new();
+    for slot in 0..3 {
+        messages.insert(
+            names[slot].clone(),
+            serde_json::to_value(p.stats(slot)).unwrap_or_default(),
+        );
+    }
+    serde_json::json!({
+        "messages": messages,
+        "ignored_frames": p.ignored_frames,
+        "windows_accepted": p.windows_accepted,
+        "windows_rejected": p.windows_rejected,
+        "standstills": p.standstills,
+        "sent": live.sent,
+        "send_dropped": live.send_dropped,
+        "reconnects": live.reconnects,
+        "bus_off": live.bus_off,
+        "error_passive": live.error_passive,
+        "status": p.status(),
+        "road_to_body_deg": p.estimate().map(|e| e.road_to_body_deg),
+    })
+}
+
+fn shutdown(p: &Pipeline, path: &Path, reference: Option<f64>, live: &LiveStats) -> Result<i32> {
     notify(&[sd_notify::NotifyState::Stopping]);
+    tracing::info!("final stats {}", stats_json(p, live));
     match state::save(path, &persisted(p, reference)) {
         Ok(()) => {
             tracing::info!(path = %path.display(), status = ?p.status(), "state saved; exiting");

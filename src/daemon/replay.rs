@@ -258,6 +258,10 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
                 condition_name(*condition)
             )
         }
+        Event::LoadChangeSuspected { t_s, delta_deg } => writeln!(
+            out,
+            "{t_s:12.3}  load change?      {delta_deg:+.3} deg since the last baseline; the next window decides"
+        ),
         Event::LoadChanged {
             t_s,
             delta_deg,

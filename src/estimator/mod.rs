@@ -98,6 +98,13 @@ pub enum Event {
         condition: Condition,
         reason: RejectReason,
     },
+    /// A pitch step at the first standstill after a restart or wheel-speed outage:
+    /// the load may have changed, or the car moved unseen. The next accepted window
+    /// decides; until then nothing changes.
+    LoadChangeSuspected {
+        t_s: f64,
+        delta_deg: f64,
+    },
     /// A step in standstill IMU pitch: the load changed while the road could not.
     LoadChanged {
         t_s: f64,
@@ -163,6 +170,8 @@ struct Standstill {
     pending: Option<(Vector3<f64>, u64)>,
     /// The car drove since the previous standstill.
     moved: bool,
+    /// Nothing watched the wheels between the load baseline and this standstill.
+    motion_unknown: bool,
     /// The settled reference exists and the baseline and deceleration window were handled.
     settled_done: bool,
 }
@@ -194,6 +203,10 @@ pub struct Estimator {
     wheels: Option<WheelSpeeds>,
     wheels_zero_since: Option<f64>,
     wheels_stopped: bool,
+    /// The wheels have not been watched since the load baseline (start, restore, outage).
+    motion_unknown: bool,
+    /// A load step seen when motion was unknown, waiting for a window: (delta rad, new pitch rad).
+    pending_load: Option<(f64, f64)>,
     quiet_since: Option<f64>,
     /// Odometry since the last standstill ended, m.
     travelled_m: f64,
@@ -228,6 +241,8 @@ impl Estimator {
             wheels: None,
             wheels_zero_since: None,
             wheels_stopped: false,
+            motion_unknown: true,
+            pending_load: None,
             quiet_since: None,
             travelled_m: 0.0,
             standstill: None,
@@ -351,6 +366,7 @@ impl Estimator {
             }
         }
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
+        self.motion_unknown = true;
         // A restored magnitude counts as a few seconds of evidence; new stops refine it.
         self.gravity = st.gravity_mps2.map(|g| (g, 500.0));
         self.refresh_estimate();
@@ -408,6 +424,7 @@ impl Estimator {
         self.wheels = None;
         self.wheels_zero_since = None;
         self.wheels_stopped = false;
+        self.motion_unknown = true;
     }
 
     /// Feed an IMU sample.
@@ -674,6 +691,9 @@ impl Estimator {
             .max(first_quiet.saturating_sub(100))
             .min(n - 1);
         let moved = self.travelled_m > 0.5;
+        // From here on the wheels are watched; before, motion may have gone unseen.
+        let motion_unknown = self.motion_unknown && !moved;
+        self.motion_unknown = false;
         self.pending.clear();
         self.standstill = Some(Standstill {
             t_rest_s: self.hist.get(rest).t_s,
@@ -686,6 +706,7 @@ impl Estimator {
             block_t0_s: t_now,
             pending: None,
             moved,
+            motion_unknown,
             settled_done: false,
         });
         self.travelled_m = 0.0;
@@ -813,7 +834,17 @@ impl Estimator {
             Some(base) if !st.moved => {
                 let delta = pitch - base;
                 if delta.abs().to_degrees() > self.cfg.load_change_deg {
-                    self.apply_load_change(delta, pitch, t_now, emit);
+                    if st.motion_unknown {
+                        // After a restart or a wheel-speed outage the car may have moved
+                        // to another grade: let the next accepted window decide.
+                        self.pending_load = Some((delta, pitch));
+                        emit(Event::LoadChangeSuspected {
+                            t_s: t_now,
+                            delta_deg: delta.to_degrees(),
+                        });
+                    } else {
+                        self.apply_load_change(delta, pitch, t_now, emit);
+                    }
                 }
             }
             _ => self.baseline_pitch_rad = Some(pitch),
@@ -976,6 +1007,17 @@ impl Estimator {
         match r {
             Ok(g) => {
                 let r2b = imu_pitch_rad - g.slope_rad;
+                if let Some((delta, new_pitch)) = self.pending_load.take() {
+                    // Keep the suspected load change only if this window agrees with it.
+                    let shifted_closer = self.estimate.is_none_or(|e| {
+                        let w = r2b.to_degrees();
+                        (w - (e.road_to_body_deg + delta.to_degrees())).abs()
+                            < (w - e.road_to_body_deg).abs()
+                    });
+                    if shifted_closer {
+                        self.apply_load_change(delta, new_pitch, t_s, emit);
+                    }
+                }
                 self.avg.push(r2b.to_degrees());
                 self.last_slope_rad = Some(g.slope_rad);
                 self.refresh_estimate();
