@@ -19,6 +19,8 @@ pub struct Cli {
 pub enum Format {
     Table,
     Json,
+    /// Pooled over the settings of each bias or noise value (paper-grid only).
+    Summary,
 }
 
 #[derive(Debug, Subcommand)]
@@ -182,7 +184,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 format,
                 threads,
             } => {
-                crate::report::paper_grid(runs, seed, format == Format::Json, threads)?;
+                crate::report::paper_grid(runs, seed, format, threads)?;
                 Ok(0)
             }
         },
