@@ -6,9 +6,24 @@ use anyhow::Result;
 use std::io::Write;
 
 /// `leveld simulate paper-grid`.
-pub fn paper_grid(runs: usize, seed: u64, format: crate::cli::Format, threads: Option<usize>) -> Result<()> {
-    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
-    let rows = paper::run_grid(&paper::grid(), runs, seed, &EstimatorConfig::default(), threads);
+pub fn paper_grid(
+    runs: usize,
+    seed: u64,
+    format: crate::cli::Format,
+    threads: Option<usize>,
+) -> Result<()> {
+    let threads = threads.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let rows = paper::run_grid(
+        &paper::grid(),
+        runs,
+        seed,
+        &EstimatorConfig::default(),
+        threads,
+    );
     let mut out = std::io::stdout().lock();
     match format {
         crate::cli::Format::Json => {
@@ -24,21 +39,45 @@ pub fn paper_grid(runs: usize, seed: u64, format: crate::cli::Format, threads: O
 
 /// Pooled errors per bias and per noise value (all slope, pitch and acceleration settings).
 fn write_summary(out: &mut impl Write, rows: &[Row]) -> Result<()> {
-    writeln!(out, "| sweep | value | windows | IMU pitch err mean | slope err mean | road-to-IMU err mean | road-to-IMU err std |")?;
+    writeln!(
+        out,
+        "| sweep | value | windows | IMU pitch err mean | slope err mean | road-to-IMU err mean | road-to-IMU err std |"
+    )?;
     writeln!(out, "| --- | --- | --- | --- | --- | --- | --- |")?;
-    for (sweep, values, unit) in [(Sweep::Bias, paper::bias_values(), "m/s^2"), (Sweep::Noise, paper::noise_values(), "ug/sqrt(Hz)")] {
+    for (sweep, values, unit) in [
+        (Sweep::Bias, paper::bias_values(), "m/s^2"),
+        (Sweep::Noise, paper::noise_values(), "ug/sqrt(Hz)"),
+    ] {
         for v in values {
             let sel: Vec<&Row> = rows
                 .iter()
-                .filter(|r| r.setting.sweep == sweep && if sweep == Sweep::Bias { r.setting.bias_mps2 == v } else { r.setting.noise_ug == v })
+                .filter(|r| {
+                    r.setting.sweep == sweep
+                        && if sweep == Sweep::Bias {
+                            r.setting.bias_mps2 == v
+                        } else {
+                            r.setting.noise_ug == v
+                        }
+                })
                 .collect();
             let n: usize = sel.iter().map(|r| r.n).sum();
-            let pooled = |f: &dyn Fn(&Row) -> f64| sel.iter().map(|r| f(r) * r.n as f64).sum::<f64>() / n.max(1) as f64;
-            let std = (sel.iter().map(|r| r.pitch_err_std_deg.powi(2) * r.n as f64).sum::<f64>() / n.max(1) as f64).sqrt();
+            let pooled = |f: &dyn Fn(&Row) -> f64| {
+                sel.iter().map(|r| f(r) * r.n as f64).sum::<f64>() / n.max(1) as f64
+            };
+            let std = (sel
+                .iter()
+                .map(|r| r.pitch_err_std_deg.powi(2) * r.n as f64)
+                .sum::<f64>()
+                / n.max(1) as f64)
+                .sqrt();
             writeln!(
                 out,
                 "| {} | {v} {unit} | {n} | {:+.3} | {:+.3} | {:+.3} | {:.3} |",
-                if sweep == Sweep::Bias { "bias" } else { "noise" },
+                if sweep == Sweep::Bias {
+                    "bias"
+                } else {
+                    "noise"
+                },
                 pooled(&|r| r.imu_pitch_err_mean_deg),
                 pooled(&|r| r.slope_err_mean_deg),
                 pooled(&|r| r.pitch_err_mean_deg),

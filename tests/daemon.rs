@@ -370,3 +370,25 @@ fn systemd_unit_exposure_is_at_most_2() {
         .unwrap();
     assert!(level <= 2.0, "{line}");
 }
+
+#[test]
+fn a_mirrored_bus_takes_over_when_the_source_goes_silent() {
+    let frames = frames_of(&multi_stop());
+    let mut p = pipeline();
+    let mut sink = Collect::default();
+    // Everything arrives on both interfaces; interface 0 goes silent after 60 s.
+    for f in &frames {
+        if f.t_s < 160.0 {
+            p.on_can_frame_from(0, f.t_s, f, &mut sink);
+        }
+        p.on_can_frame_from(1, f.t_s + 0.0001, f, &mut sink);
+    }
+    let w = p.stats(0);
+    assert!(w.mirrored > 2000, "{w:?}");
+    assert_eq!(
+        w.timeouts, 1,
+        "one loss, then interface 1 takes over: {w:?}"
+    );
+    assert_eq!((w.checksum_errors, w.counter_errors), (0, 0), "{w:?}");
+    assert_eq!(p.status(), Status::Valid, "{:?}", p.estimate());
+}

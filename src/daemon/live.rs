@@ -275,11 +275,11 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
         let reason = loop {
             tokio::select! {
                 item = frames.next() => {
-                    let Some((_, r)) = item else { break "no input stream".to_string() };
+                    let Some((source, r)) = item else { break "no input stream".to_string() };
                     match r {
                         Ok((CanFrame::Data(f), ts)) => {
                             let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                            p.on_can_frame(secs(ts), &f, &mut sink);
+                            p.on_can_frame_from(source as u32, secs(ts), &f, &mut sink);
                             if sink.lost_output { break "output socket failed".to_string() }
                         }
                         Ok((CanFrame::Remote(_), _)) => {}
@@ -404,10 +404,10 @@ pub fn calibrate_live(
         loop {
             tokio::select! {
                 item = frames.next() => {
-                    let Some((_, r)) = item else { anyhow::bail!("CAN input ended") };
+                    let Some((source, r)) = item else { anyhow::bail!("CAN input ended") };
                     if let Ok((CanFrame::Data(f), ts)) = r {
                         let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
-                        p.on_can_frame(secs(ts), &f, &mut sink);
+                        p.on_can_frame_from(source as u32, secs(ts), &f, &mut sink);
                         if let Some((pitch, settled)) = p.est.standstill_pitch() {
                             best = Some(settled);
                             if settled >= duration_s {

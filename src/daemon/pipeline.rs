@@ -47,6 +47,8 @@ pub struct MsgStats {
     pub counter_errors: u64,
     pub dlc_errors: u64,
     pub timeouts: u64,
+    /// Copies of the message from an interface other than its source.
+    pub mirrored: u64,
 }
 
 /// What the pipeline reports besides estimator events.
@@ -344,6 +346,8 @@ pub struct Pipeline {
     /// State changed since last save (an accepted window or load change).
     pub dirty: bool,
     half: [Option<(u8, f64, [f64; 3])>; 2],
+    /// Interface each input message is taken from.
+    source: [Option<u32>; 3],
 }
 
 impl Pipeline {
@@ -388,6 +392,7 @@ impl Pipeline {
             standstills: 0,
             dirty: false,
             half: [None; 2],
+            source: [None; 3],
         })
     }
 
@@ -530,6 +535,7 @@ impl Pipeline {
                 s.lost = true;
                 s.stats.timeouts += 1;
                 s.counter.reset();
+                self.source[i] = None;
                 sink.notice(&Notice::InputLost {
                     t_s,
                     message: ROLE_NAMES[i],
@@ -577,6 +583,20 @@ impl Pipeline {
 
     /// Handle one received frame (any `embedded_can::Frame`) stamped `t_s`.
     pub fn on_can_frame<F: embedded_can::Frame>(&mut self, t_s: f64, f: &F, sink: &mut dyn Sink) {
+        self.on_can_frame_from(0, t_s, f, sink);
+    }
+
+    /// As [`Pipeline::on_can_frame`], from interface number `source`. Each input message
+    /// is taken from one interface; copies from others (a gateway mirroring the ESC onto
+    /// a second bus) are counted as mirrored and not used. When the source goes silent
+    /// another interface may take over.
+    pub fn on_can_frame_from<F: embedded_can::Frame>(
+        &mut self,
+        source: u32,
+        t_s: f64,
+        f: &F,
+        sink: &mut dyn Sink,
+    ) {
         if f.is_remote_frame() {
             self.tick(t_s, sink);
             self.ignored_frames += 1;
@@ -586,12 +606,24 @@ impl Pipeline {
             embedded_can::Id::Standard(id) => (id.as_raw() as u32, false),
             embedded_can::Id::Extended(id) => (id.as_raw(), true),
         };
-        self.on_frame(t_s, id, ext, f.data(), sink);
+        self.on_frame_from(source, t_s, id, ext, f.data(), sink);
     }
 
     /// Handle one received frame stamped `t_s`.
     pub fn on_frame(
         &mut self,
+        t_s: f64,
+        id: u32,
+        extended: bool,
+        data: &[u8],
+        sink: &mut dyn Sink,
+    ) {
+        self.on_frame_from(0, t_s, id, extended, data, sink);
+    }
+
+    fn on_frame_from(
+        &mut self,
+        source: u32,
         t_s: f64,
         id: u32,
         extended: bool,
@@ -605,6 +637,14 @@ impl Pipeline {
             self.ignored_frames += 1;
             return;
         };
+        match self.source[slot] {
+            None => self.source[slot] = Some(source),
+            Some(s) if s != source => {
+                self.st[slot].stats.mirrored += 1;
+                return;
+            }
+            Some(_) => {}
+        }
         self.st[slot].stats.frames += 1;
         if data.len() != 8 {
             self.st[slot].stats.dlc_errors += 1;

@@ -145,6 +145,8 @@ pub fn replay<'a>(
     let mut line = String::new();
     let (mut lineno, mut nframes, mut malformed) = (0u64, 0u64, 0u64);
     let mut examples = Vec::new();
+    // Interfaces in order of appearance; their index is the frame's source.
+    let mut ifaces: Vec<String> = Vec::new();
     loop {
         line.clear();
         if input
@@ -168,7 +170,14 @@ pub fn replay<'a>(
                     p.ignored_frames += 1;
                     continue;
                 }
-                p.on_can_frame(f.t_s, &f, &mut sink);
+                let source = match ifaces.iter().position(|i| i == f.iface()) {
+                    Some(i) => i,
+                    None => {
+                        ifaces.push(f.iface().to_string());
+                        ifaces.len() - 1
+                    }
+                };
+                p.on_can_frame_from(source as u32, f.t_s, &f, &mut sink);
             }
             Err(e) => {
                 malformed += 1;
