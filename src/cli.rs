@@ -73,10 +73,32 @@ pub enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCmd,
+    },
     /// Run the simulator.
     Simulate {
         #[command(subcommand)]
         what: SimulateCmd,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCmd {
+    /// leveld against the Kasaba- and Nilsson-style baselines on simulated drives.
+    Accuracy {
+        /// Scenario files (default: every file in scenarios/).
+        #[arg(long, num_args = 1..)]
+        scenarios: Vec<PathBuf>,
+        #[arg(long, value_enum, default_value_t = Format::Table)]
+        format: Format,
+        /// Write PNG plots to this folder.
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        #[arg(long)]
+        threads: Option<usize>,
     },
 }
 
@@ -155,6 +177,19 @@ pub fn run(cli: Cli) -> Result<i32> {
             dry_run,
         ),
         Command::CheckConfig { config } => crate::report::check_config(config.as_deref()),
+        Command::Bench { what } => match what {
+            BenchCmd::Accuracy {
+                scenarios,
+                format,
+                plots,
+                threads,
+            } => crate::report::bench_accuracy(
+                &scenarios,
+                format == Format::Json,
+                plots.as_deref(),
+                threads,
+            ),
+        },
         Command::Simulate { what } => match what {
             SimulateCmd::Drive {
                 preset,

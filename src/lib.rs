@@ -3,6 +3,7 @@
 //! - [`estimator`]: the sans-IO estimator (Kim et al., IEEE Access 2023).
 //! - [`sim`]: a vehicle and IMU simulator with ground truth.
 
+pub mod bench;
 pub mod can;
 pub mod cli;
 pub mod daemon;

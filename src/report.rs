@@ -370,3 +370,76 @@ pub fn calibrate(
     }
     Ok(0)
 }
+
+/// `leveld bench accuracy`.
+pub fn bench_accuracy(
+    scenarios: &[std::path::PathBuf],
+    json: bool,
+    plots: Option<&std::path::Path>,
+    threads: Option<usize>,
+) -> Result<i32> {
+    use anyhow::Context;
+    let files: Vec<std::path::PathBuf> = if scenarios.is_empty() {
+        let mut v: Vec<_> = std::fs::read_dir("scenarios")
+            .context("no --scenarios given and no scenarios/ folder here")?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            .collect();
+        v.sort();
+        v
+    } else {
+        scenarios.to_vec()
+    };
+    let mut cases = Vec::new();
+    for f in &files {
+        let text =
+            std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?;
+        let spec = crate::bench::suite::DriveSpec::parse(&text)
+            .with_context(|| format!("scenario {} is not valid", f.display()))?;
+        cases.extend(spec.cases());
+    }
+    let threads = threads.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let rows = crate::bench::accuracy::run(&cases, threads);
+    let mut out = std::io::stdout().lock();
+    if json {
+        for r in &rows {
+            writeln!(out, "{}", serde_json::to_string(r)?)?;
+        }
+    } else {
+        writeln!(
+            out,
+            "| scenario | load | method | mean err | mean abs err | std | p95 window err | accepted | rejected | time to valid | distance to valid |"
+        )?;
+        writeln!(
+            out,
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+        )?;
+        for r in &rows {
+            writeln!(
+                out,
+                "| {} | {} | {} | {:+.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {} |",
+                r.scenario,
+                r.load,
+                r.method,
+                r.mean_err_deg,
+                r.mean_abs_err_deg,
+                r.std_err_deg,
+                r.p95_window_err_deg,
+                r.accepted,
+                r.rejected,
+                r.time_to_valid_s
+                    .map_or("never".into(), |t| format!("{t:.0} s")),
+                r.distance_to_valid_m
+                    .map_or("never".into(), |d| format!("{d:.0} m")),
+            )?;
+        }
+    }
+    if let Some(dir) = plots {
+        crate::bench::plots::write(dir, &rows)?;
+    }
+    Ok(0)
+}

@@ -112,6 +112,11 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let acc_sigma = sen.acc_noise_ug_rthz * 1e-6 * G_MPS2 * sen.imu_rate_hz.sqrt();
     let gyro_sigma = sen.gyro_noise_dps_rthz * sen.imu_rate_hz.sqrt();
     let imu_dt = 1.0 / sen.imu_rate_hz;
+    let rough_phase = if veh.rough_road_mps2 > 0.0 {
+        std::f64::consts::TAU * g.uniform()
+    } else {
+        0.0
+    };
     let mut acc_bias = Vector3::from(sen.acc_bias_mps2);
     let mut gyro_bias = Vector3::from(sen.gyro_bias_dps);
 
@@ -214,6 +219,18 @@ pub fn simulate(sc: &Scenario) -> Drive {
                 }
             }
             let mut f = f_b + acc_bias;
+            if veh.rough_road_mps2 > 0.0 {
+                // Zero-mean vertical vibration growing with speed; its displacement is a
+                // few tenths of a millimetre, so it adds no drift of its own.
+                let amp = veh.rough_road_mps2 * (m.truth.v_mps / 13.9).min(1.5);
+                let t = m.truth.t_s;
+                let vib: f64 = [(8.3, 0.0), (11.1, 1.3), (13.7, 2.9)]
+                    .iter()
+                    .map(|(hz, ph)| (std::f64::consts::TAU * hz * t + ph + rough_phase).sin())
+                    .sum::<f64>()
+                    / 3f64.sqrt();
+                f[2] += amp * vib;
+            }
             let mut w = w_b.map(f64::to_degrees) + gyro_bias;
             for i in 0..3 {
                 f[i] += acc_sigma * g.normal();

@@ -156,6 +156,8 @@ pub struct Vehicle {
     pub track_m: f64,
     /// Distance between the axles, m; the body pitch follows the road chord between them.
     pub wheelbase_m: f64,
+    /// Rough-road vertical vibration at the IMU at 50 km/h (zero-mean 8-14 Hz), m/s^2.
+    pub rough_road_mps2: f64,
 }
 
 impl Default for Vehicle {
@@ -167,6 +169,7 @@ impl Default for Vehicle {
             pitch_damping: 0.4,
             track_m: 1.6,
             wheelbase_m: 2.7,
+            rough_road_mps2: 0.0,
         }
     }
 }

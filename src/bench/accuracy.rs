@@ -1,0 +1,155 @@
+//! The accuracy benchmark: every method on identical simulated drives, against truth.
+
+use super::baselines::{Kasaba, Leveld, Nilsson, PitchMethod};
+use super::suite::Case;
+use crate::estimator::{Averaging, EstimatorConfig};
+use crate::sim::{Input, simulate};
+use serde::Serialize;
+
+/// One row: a scenario, a load case, a method.
+#[derive(Debug, Clone, Serialize)]
+pub struct Row {
+    pub scenario: String,
+    pub load: String,
+    pub method: String,
+    /// Mean of (estimate - truth) from the first converged status on, sampled at 1 Hz, deg.
+    pub mean_err_deg: f64,
+    /// Mean of |estimate - truth| over the same samples, deg.
+    pub mean_abs_err_deg: f64,
+    pub std_err_deg: f64,
+    /// 95th percentile of |single window - truth| (baselines: their periodic estimates), deg.
+    pub p95_window_err_deg: f64,
+    pub accepted: usize,
+    pub rejected: u64,
+    pub time_to_valid_s: Option<f64>,
+    pub distance_to_valid_m: Option<f64>,
+    /// Estimate and truth at 1 Hz: (t s, estimate deg or NaN, truth deg), for plots.
+    #[serde(skip)]
+    pub track: Vec<(f64, f64, f64)>,
+    #[serde(skip)]
+    pub window_errors: Vec<f64>,
+    /// Road grade under the vehicle at each window, deg (same order as `window_errors`).
+    #[serde(skip)]
+    pub window_grades_deg: Vec<f64>,
+}
+
+/// The methods compared.
+pub fn methods() -> Vec<Box<dyn PitchMethod>> {
+    let eq17 = EstimatorConfig {
+        averaging: Averaging::Mean,
+        ..EstimatorConfig::default()
+    };
+    vec![
+        Box::new(Leveld::new(EstimatorConfig::default(), "leveld")),
+        Box::new(Leveld::new(eq17, "leveld-eq17")),
+        Box::new(Kasaba::new()),
+        Box::new(Nilsson::new()),
+    ]
+}
+
+/// Run every method on one case.
+pub fn run_case(case: &Case, make: &dyn Fn() -> Vec<Box<dyn PitchMethod>>) -> Vec<Row> {
+    let drive = simulate(&case.scenario);
+    let mut ms = make();
+    let mut tracks: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); ms.len()];
+    let mut valid_at: Vec<Option<(f64, f64)>> = vec![None; ms.len()];
+    let mut next_sample = 0.0;
+    for input in drive.merged() {
+        let t = match input {
+            Input::Imu(s) => {
+                for m in ms.iter_mut() {
+                    m.push_imu(s);
+                }
+                s.t_s
+            }
+            Input::Wheels(w) => {
+                for m in ms.iter_mut() {
+                    m.push_wheels(w);
+                }
+                w.t_s
+            }
+        };
+        if t >= next_sample {
+            next_sample = t + 1.0;
+            let tr = drive.truth_at(t);
+            for (i, m) in ms.iter().enumerate() {
+                let e = m.estimate();
+                if valid_at[i].is_none() && e.is_some_and(|e| e.1) {
+                    valid_at[i] = Some((t, tr.s_m));
+                }
+                tracks[i].push((t, e.map_or(f64::NAN, |e| e.0), tr.load_pitch_deg));
+            }
+        }
+    }
+    let t_end = drive.truth.last().map_or(0.0, |x| x.t_s);
+    for m in ms.iter_mut() {
+        m.finish(t_end);
+    }
+    ms.iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let start = valid_at[i].map(|v| v.0);
+            let errs: Vec<f64> = tracks[i]
+                .iter()
+                .filter(|(t, e, _)| start.is_some_and(|s| *t >= s) && e.is_finite())
+                .map(|(_, e, tr)| e - tr)
+                .collect();
+            let n = errs.len().max(1) as f64;
+            let mean = errs.iter().sum::<f64>() / n;
+            let mean_abs = errs.iter().map(|e| e.abs()).sum::<f64>() / n;
+            let std = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / n).sqrt();
+            let mut w: Vec<f64> = m
+                .windows()
+                .iter()
+                .map(|(t, v)| (v - drive.truth_at(*t).load_pitch_deg).abs())
+                .collect();
+            w.sort_by(f64::total_cmp);
+            let p95 = if w.is_empty() {
+                f64::NAN
+            } else {
+                w[((w.len() as f64 * 0.95).ceil() as usize).clamp(1, w.len()) - 1]
+            };
+            Row {
+                scenario: case.scenario_name.clone(),
+                load: case.load.clone(),
+                method: m.name().to_string(),
+                mean_err_deg: if errs.is_empty() { f64::NAN } else { mean },
+                mean_abs_err_deg: if errs.is_empty() { f64::NAN } else { mean_abs },
+                std_err_deg: if errs.is_empty() { f64::NAN } else { std },
+                p95_window_err_deg: p95,
+                accepted: m.windows().len(),
+                rejected: m.rejected(),
+                time_to_valid_s: valid_at[i].map(|v| v.0),
+                distance_to_valid_m: valid_at[i].map(|v| v.1),
+                track: tracks[i].clone(),
+                window_errors: m
+                    .windows()
+                    .iter()
+                    .map(|(t, v)| v - drive.truth_at(*t).load_pitch_deg)
+                    .collect(),
+                window_grades_deg: m
+                    .windows()
+                    .iter()
+                    .map(|(t, _)| drive.truth_at(*t).grade_deg)
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+/// Run cases on `threads` threads; rows in case order.
+pub fn run(cases: &[Case], threads: usize) -> Vec<Row> {
+    let mut out: Vec<Vec<Row>> = vec![Vec::new(); cases.len()];
+    std::thread::scope(|sc| {
+        let chunk = cases.len().div_ceil(threads.max(1)).max(1);
+        for (ci, (cs, slots)) in cases.chunks(chunk).zip(out.chunks_mut(chunk)).enumerate() {
+            let _ = ci;
+            sc.spawn(move || {
+                for (c, slot) in cs.iter().zip(slots.iter_mut()) {
+                    *slot = run_case(c, &methods);
+                }
+            });
+        }
+    });
+    out.into_iter().flatten().collect()
+}

@@ -1,0 +1,6 @@
+//! Accuracy benchmark: leveld against baseline methods on simulated drive suites.
+
+pub mod accuracy;
+pub mod baselines;
+pub mod plots;
+pub mod suite;

@@ -1,0 +1,219 @@
+//! Drive scenarios of the accuracy benchmark, described in TOML files (`scenarios/`)
+//! and expanded into simulator scenarios with a fixed seed.
+
+use crate::sim::noise::Gauss;
+use crate::sim::scenario::{Scenario, Sensors, SpeedProfile, Vehicle};
+use serde::{Deserialize, Serialize};
+
+/// One scenario file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriveSpec {
+    pub name: String,
+    pub seed: u64,
+    /// Stops after the start.
+    pub stops: usize,
+    /// Approximate length of the drive, km (cruise distances are scaled to it).
+    #[serde(default)]
+    pub distance_km: Option<f64>,
+    /// Grade at each stop, percent: a fixed list cycled, or drawn from +-grade_max_pct.
+    #[serde(default)]
+    pub grades_pct: Vec<f64>,
+    #[serde(default)]
+    pub grade_max_pct: f64,
+    /// Ranges [min, max] the legs are drawn from.
+    pub top_kmh: [f64; 2],
+    pub accel_mps2: [f64; 2],
+    pub brake_mps2: [f64; 2],
+    pub hold_s: [f64; 2],
+    /// Share of stops followed by a 90 degree turn at the intersection.
+    #[serde(default)]
+    pub turn_share: f64,
+    /// Share of turns that start right at the stop line (inside the window).
+    #[serde(default)]
+    pub turn_at_line_share: f64,
+    /// Road-to-body pitch per load case, deg.
+    pub loads: Vec<Load>,
+    /// Stop (1-based) at which the second load case is loaded in ("5P" runs).
+    #[serde(default)]
+    pub load_change_at_stop: Option<usize>,
+    #[serde(default)]
+    pub rough_road_mps2: f64,
+    /// Speed bumps 3 m after this share of stops.
+    #[serde(default)]
+    pub bump_share: f64,
+    /// Put this share of stops right on a grade change.
+    #[serde(default)]
+    pub stop_on_grade_change_share: f64,
+    #[serde(default)]
+    pub sensors: Option<Sensors>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Load {
+    pub name: String,
+    pub pitch_deg: f64,
+}
+
+/// A scenario with its load case and where its stops are.
+#[derive(Debug, Clone)]
+pub struct Case {
+    pub scenario_name: String,
+    pub load: String,
+    pub scenario: Scenario,
+}
+
+impl DriveSpec {
+    pub fn parse(text: &str) -> Result<Self, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    /// One simulator scenario per load case. The second load case, when
+    /// `load_change_at_stop` is set, starts in the first and is loaded at that stop.
+    pub fn cases(&self) -> Vec<Case> {
+        let mut out = Vec::new();
+        for (li, load) in self.loads.iter().enumerate() {
+            out.push(Case {
+                scenario_name: self.name.clone(),
+                load: load.name.clone(),
+                scenario: self.build(li),
+            });
+        }
+        out
+    }
+
+    fn build(&self, load_idx: usize) -> Scenario {
+        let mut g = Gauss::new(self.seed);
+        let pick = |g: &mut Gauss, r: [f64; 2]| r[0] + (r[1] - r[0]) * g.uniform();
+        let mut legs = Vec::new();
+        for _ in 0..self.stops {
+            let rapid = g.uniform() < 0.4;
+            let accel = if rapid {
+                pick(
+                    &mut g,
+                    [
+                        0.5 * (self.accel_mps2[0] + self.accel_mps2[1]),
+                        self.accel_mps2[1],
+                    ],
+                )
+            } else {
+                pick(
+                    &mut g,
+                    [
+                        self.accel_mps2[0],
+                        0.5 * (self.accel_mps2[0] + self.accel_mps2[1]),
+                    ],
+                )
+            };
+            legs.push((
+                pick(&mut g, self.hold_s),
+                accel,
+                pick(&mut g, self.top_kmh),
+                5.0,
+                pick(&mut g, self.brake_mps2),
+            ));
+        }
+        // Scale the cruise of each leg so the drive has the requested length.
+        if let Some(km) = self.distance_km {
+            let base: f64 = legs
+                .iter()
+                .map(|l| {
+                    let v = l.2 / 3.6;
+                    v * v / (2.0 * l.1) + v * v / (2.0 * l.4)
+                })
+                .sum();
+            let per_leg = ((km * 1000.0 - base) / legs.len() as f64).max(20.0);
+            for l in &mut legs {
+                l.3 = per_leg / (l.2 / 3.6);
+            }
+        }
+        let (speed, stops): (SpeedProfile, Vec<f64>) = crate::sim::presets::city_legs(&legs, 8.0);
+        let grades: Vec<f64> = if !self.grades_pct.is_empty() {
+            (0..stops.len())
+                .map(|i| self.grades_pct[i % self.grades_pct.len()])
+                .collect()
+        } else {
+            (0..stops.len())
+                .map(|_| (2.0 * g.uniform() - 1.0) * self.grade_max_pct)
+                .collect()
+        };
+        let mut road = crate::sim::presets::road_around_stops(&stops, &grades);
+        // Stops right on a grade change: move the change onto the stop.
+        for (i, &s) in stops.iter().enumerate().skip(1) {
+            if g.uniform() < self.stop_on_grade_change_share {
+                let gi = grades[i];
+                let other = (gi + 4.0).min(self.grade_max_pct.max(4.0));
+                let deg = |p: f64| (p / 100.0).atan().to_degrees();
+                road.grade_deg.retain(|k| (k.0 - s).abs() > 6.0);
+                road.grade_deg.push((s - 0.5, deg(gi)));
+                road.grade_deg.push((s + 0.5, deg(other)));
+                road.grade_deg.sort_by(|a, b| a.0.total_cmp(&b.0));
+            }
+        }
+        // Speed bumps: a 7 cm hump over 3 m, 3 m past the stop.
+        for &s in stops.iter() {
+            if g.uniform() < self.bump_share {
+                let base = road.grade(s + 3.0).0.to_degrees();
+                let hump = (0.07f64 / 1.5).atan().to_degrees();
+                road.grade_deg.retain(|k| k.0 < s + 2.5 || k.0 > s + 6.5);
+                road.grade_deg.extend([
+                    (s + 2.9, base),
+                    (s + 3.0, base + hump),
+                    (s + 4.4, base + hump),
+                    (s + 4.6, base - hump),
+                    (s + 5.9, base - hump),
+                    (s + 6.0, base),
+                ]);
+                road.grade_deg.sort_by(|a, b| a.0.total_cmp(&b.0));
+            }
+        }
+        // Turns after some stops: 90 degrees on a 15 m radius.
+        for &s in stops.iter() {
+            if g.uniform() < self.turn_share {
+                let start = if g.uniform() < self.turn_at_line_share {
+                    s
+                } else {
+                    s + 12.0
+                };
+                let dir = if g.uniform() < 0.5 { 1.0 } else { -1.0 };
+                road.curves.push((
+                    start,
+                    start + 15.0 * std::f64::consts::FRAC_PI_2,
+                    dir / 15.0,
+                ));
+            }
+        }
+        let base_load = self.loads[0].pitch_deg;
+        let (load0, changes) = match (load_idx, self.load_change_at_stop) {
+            (0, _) => (base_load, Vec::new()),
+            (li, Some(k)) if k < legs.len() => {
+                // Stop k is the hold that starts leg k: the legs before it, then 2 s
+                // into the hold (which lasts at least hold_s[0]).
+                let t: f64 = legs[..k]
+                    .iter()
+                    .map(|l| l.0 + l.2 / 3.6 / l.1 + l.3 + l.2 / 3.6 / l.4)
+                    .sum::<f64>()
+                    + 2.0;
+                (base_load, vec![(t, self.loads[li].pitch_deg, 3.0)])
+            }
+            (li, _) => (self.loads[li].pitch_deg, Vec::new()),
+        };
+        Scenario {
+            speed,
+            road,
+            load_pitch_deg: load0,
+            load_changes: changes,
+            vehicle: Vehicle {
+                rough_road_mps2: self.rough_road_mps2,
+                ..Vehicle::default()
+            },
+            sensors: self.sensors.clone().unwrap_or(Sensors {
+                acc_bias_mps2: [0.05, -0.03, 0.08],
+                gyro_bias_dps: [0.2, -0.3, 0.1],
+                ..Sensors::default()
+            }),
+            seed: self.seed.wrapping_mul(31).wrapping_add(load_idx as u64),
+        }
+    }
+}
