@@ -34,6 +34,9 @@ pub struct EstimatorConfig {
     /// feed the bias filter (eq. 7) and the gravity reference, so body rocking after a
     /// stop and slow rotations (loading, doors) leak into neither, deg/s.
     pub bias_gate_dps: f64,
+    /// Random walk of the accelerometer bias along gravity (temperature drift), m/s^2
+    /// per sqrt(s). Sets how long the standstill gravity magnitude is averaged.
+    pub gravity_walk_mps2_rts: f64,
     /// Settled samples needed before the deceleration window is evaluated, s.
     pub settle_time_s: f64,
     /// A window walk starts where the 5-sample mean specific force last matched the
@@ -44,6 +47,8 @@ pub struct EstimatorConfig {
     pub gyro_bias_alpha: f64,
     /// Horizontal travel of one slope window, T_d of eq. 15, m.
     pub window_distance_m: f64,
+    /// The straightness check continues this far past the window, m.
+    pub chord_check_extra_m: f64,
     /// A window whose corrected trajectory leaves its end-to-end chord by more than this is rejected, m.
     pub max_chord_deviation_m: f64,
     /// Windows with a yaw rate above this are rejected as turning, deg/s.
@@ -86,8 +91,10 @@ impl Default for EstimatorConfig {
             bias_gate_dps: 0.1,
             rest_acc_tol_mps2: 0.1,
             settle_time_s: 3.0,
+            gravity_walk_mps2_rts: 0.0005,
             gyro_bias_alpha: 0.01,
             window_distance_m: 2.0,
+            chord_check_extra_m: 1.0,
             max_chord_deviation_m: 0.012,
             max_yaw_rate_dps: 3.0,
             max_lateral_acc_mps2: 0.5,
@@ -149,6 +156,7 @@ impl EstimatorConfig {
         pos("bias_gate_dps", self.bias_gate_dps)?;
         pos("rest_acc_tol_mps2", self.rest_acc_tol_mps2)?;
         pos("settle_time_s", self.settle_time_s)?;
+        pos("gravity_walk_mps2_rts", self.gravity_walk_mps2_rts)?;
         if self.history_s < self.max_window_time_s + 2.0 {
             return Err(ConfigError {
                 field: "history_s",
@@ -165,6 +173,15 @@ impl EstimatorConfig {
         }
         pos("window_distance_m", self.window_distance_m)?;
         pos("max_chord_deviation_m", self.max_chord_deviation_m)?;
+        if !(self.chord_check_extra_m.is_finite()
+            && (0.0..=5.0).contains(&self.chord_check_extra_m))
+        {
+            return Err(ConfigError {
+                field: "chord_check_extra_m",
+                value: self.chord_check_extra_m,
+                hint: "choose 0..5 m",
+            });
+        }
         pos("max_yaw_rate_dps", self.max_yaw_rate_dps)?;
         pos("max_lateral_acc_mps2", self.max_lateral_acc_mps2)?;
         pos("max_window_time_s", self.max_window_time_s)?;

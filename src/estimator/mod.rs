@@ -212,9 +212,9 @@ pub struct Estimator {
     travelled_m: f64,
     standstill: Option<Standstill>,
     bias_rps: Option<Vector3<f64>>,
-    /// Running mean of the settled specific-force magnitude: the g of eq. 12-13, m/s^2.
-    /// Measured rather than nominal so that an accelerometer bias along z cancels.
-    gravity: Option<(f64, f64)>,
+    /// Settled specific-force magnitude, the g of eq. 12-13: measured rather than
+    /// nominal so that an accelerometer bias along z cancels.
+    gravity: Option<GravityFilter>,
     /// Settled samples waiting one stillness window before they join the reference.
     pending: std::collections::VecDeque<ImuSample>,
     /// The last stillness window was close enough to the bias to update it.
@@ -317,7 +317,7 @@ impl Estimator {
             gyro_bias_dps: self.gyro_bias_dps(),
             baseline_pitch_deg: self.baseline_pitch_rad.map(f64::to_degrees),
             last_road_slope_deg: self.last_road_slope_deg(),
-            gravity_mps2: self.gravity.map(|g| g.0),
+            gravity_mps2: self.gravity.map(|g| g.g),
         }
     }
 
@@ -368,7 +368,13 @@ impl Estimator {
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         self.motion_unknown = true;
         // A restored magnitude counts as a few seconds of evidence; new stops refine it.
-        self.gravity = st.gravity_mps2.map(|g| (g, 500.0));
+        // A restored magnitude is as uncertain as a few seconds of standstill.
+        self.gravity = st.gravity_mps2.map(|g| GravityFilter {
+            g,
+            p: 1e-5,
+            r: 1e-3,
+            last_t: None,
+        });
         self.refresh_estimate();
         Ok(())
     }
@@ -722,17 +728,20 @@ impl Estimator {
         }
     }
 
-    /// Effective number of samples in the running gravity magnitude (60 s at 100 Hz).
-    const GRAVITY_SAMPLES: f64 = 6000.0;
-
-    fn update_gravity(&mut self, f: &Vector3<f64>) {
-        let (g, n) = self.gravity.unwrap_or((f.norm(), 0.0));
-        let n = (n + 1.0).min(Self::GRAVITY_SAMPLES);
-        self.gravity = Some((g + (f.norm() - g) / n, n));
+    fn update_gravity(&mut self, t_s: f64, f: &Vector3<f64>) {
+        let q = self.cfg.gravity_walk_mps2_rts;
+        let m = f.norm();
+        let k = self.gravity.get_or_insert(GravityFilter {
+            g: m,
+            p: 1e-3,
+            r: 1e-3,
+            last_t: None,
+        });
+        k.update(t_s, m, q);
     }
 
     fn gravity_mps2(&self, fallback: f64) -> f64 {
-        self.gravity.map_or(fallback, |g| g.0)
+        self.gravity.map_or(fallback, |g| g.g)
     }
 
     fn update_standstill(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
@@ -757,7 +766,7 @@ impl Estimator {
 
     fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
         self.update_bias(s);
-        self.update_gravity(&s.acc());
+        self.update_gravity(s.t_s, &s.acc());
         let block_s = self.cfg.load_block_s;
         let settle_s = self.cfg.settle_time_s;
         let deadline_s = self.cfg.history_s - self.cfg.max_window_time_s - 1.0;
@@ -988,6 +997,7 @@ impl Estimator {
             gravity_mps2: g,
             lever_arm_m: Vector3::from(c.lever_arm_m),
             distance_m: c.window_distance_m,
+            check_extra_m: c.chord_check_extra_m,
             max_time_s: c.max_window_time_s,
             max_gap_s: c.max_imu_gap_s,
             max_yaw_rate_rps: c.max_yaw_rate_dps.to_radians(),
@@ -1056,4 +1066,32 @@ impl Estimator {
 
 fn pitch_from(f: &Vector3<f64>) -> Option<f64> {
     attitude::pitch_roll_from_gravity(f).map(|(p, _)| p)
+}
+
+/// Scalar Kalman filter on the standstill specific-force magnitude. The accelerometer
+/// bias drifts (temperature), so the magnitude is a random walk of
+/// `gravity_walk_mps2_rts`; each settled sample measures it with a noise learnt from
+/// the data. Long stops average long; a drifting bias is followed.
+#[derive(Debug, Clone, Copy)]
+struct GravityFilter {
+    g: f64,
+    /// Variance of `g`, (m/s^2)^2.
+    p: f64,
+    /// Per-sample measurement variance, (m/s^2)^2, learnt from the innovations.
+    r: f64,
+    last_t: Option<f64>,
+}
+
+impl GravityFilter {
+    fn update(&mut self, t_s: f64, m: f64, q: f64) {
+        if let Some(t0) = self.last_t {
+            self.p += q * q * (t_s - t0).max(0.0);
+        }
+        self.last_t = Some(t_s);
+        let y = m - self.g;
+        self.r = (0.995 * self.r + 0.005 * y * y).max(1e-8);
+        let k = self.p / (self.p + self.r);
+        self.g += k * y;
+        self.p *= 1.0 - k;
+    }
 }

@@ -43,6 +43,9 @@ pub struct WindowSetup {
     /// IMU offset from the body pitch centre, body axes, m.
     pub lever_arm_m: Vector3<f64>,
     pub distance_m: f64,
+    /// The straightness check goes this far past `distance_m` (the slope does not), m:
+    /// a grade change or bump just past the window end bends the path there.
+    pub check_extra_m: f64,
     pub max_time_s: f64,
     pub max_gap_s: f64,
     pub max_yaw_rate_rps: f64,
@@ -84,6 +87,8 @@ pub struct WindowIntegrator {
     last_corrected: Vector3<f64>,
     max_yaw: f64,
     max_lat: f64,
+    /// Corrected end point, horizontal length and duration when `distance_m` was reached.
+    at_distance: Option<(Vector3<f64>, f64, f64)>,
     /// (horizontal path length, corrected height) per step.
     track: Vec<(f64, f64)>,
     active: bool,
@@ -99,6 +104,7 @@ impl WindowIntegrator {
                 gravity_mps2: 9.80665,
                 lever_arm_m: Vector3::zeros(),
                 distance_m: 2.0,
+                check_extra_m: 0.0,
                 max_time_s: 10.0,
                 max_gap_s: 0.1,
                 max_yaw_rate_rps: 0.05,
@@ -115,6 +121,7 @@ impl WindowIntegrator {
             last_corrected: Vector3::zeros(),
             max_yaw: 0.0,
             max_lat: 0.0,
+            at_distance: None,
             track: Vec::with_capacity(max_points.max(2)),
             active: false,
         }
@@ -134,6 +141,7 @@ impl WindowIntegrator {
         self.last_corrected = Vector3::zeros();
         self.max_yaw = 0.0;
         self.max_lat = 0.0;
+        self.at_distance = None;
         self.track.clear();
         self.track.push((0.0, 0.0));
         self.active = true;
@@ -195,11 +203,20 @@ impl WindowIntegrator {
         self.track.push((self.horizontal_m, corrected.z));
 
         let duration_s = (s.t_s - self.t_start_s).abs();
-        if self.horizontal_m >= self.setup.distance_m {
-            let r = self.evaluate(corrected, duration_s);
+        if self.at_distance.is_none() && self.horizontal_m >= self.setup.distance_m {
+            self.at_distance = Some((corrected, self.horizontal_m, duration_s));
+        }
+        if self.at_distance.is_some()
+            && self.horizontal_m >= self.setup.distance_m + self.setup.check_extra_m
+        {
+            let r = self.evaluate();
             return self.finish_with(r);
         }
         if duration_s > self.setup.max_time_s {
+            if self.at_distance.is_some() {
+                let r = self.evaluate();
+                return self.finish_with(r);
+            }
             return self.finish_with(Err(RejectReason::TooSlow { duration_s }));
         }
         Step::Continue
@@ -210,6 +227,11 @@ impl WindowIntegrator {
         if !self.active {
             return Step::Continue;
         }
+        if self.at_distance.is_some() {
+            // The window itself is complete; only part of the extra check was possible.
+            let r = self.evaluate();
+            return self.finish_with(r);
+        }
         let distance_m = self.horizontal_m;
         self.finish_with(Err(RejectReason::TooShort { distance_m }))
     }
@@ -219,8 +241,13 @@ impl WindowIntegrator {
         Step::Done(r)
     }
 
-    fn evaluate(&self, end: Vector3<f64>, duration_s: f64) -> Result<WindowGeometry, RejectReason> {
+    fn evaluate(&self) -> Result<WindowGeometry, RejectReason> {
         let s = &self.setup;
+        let Some((end, len, duration_s)) = self.at_distance else {
+            return Err(RejectReason::TooShort {
+                distance_m: self.horizontal_m,
+            });
+        };
         if self.max_yaw > s.max_yaw_rate_rps || self.max_lat > s.max_lateral_acc_mps2 {
             return Err(RejectReason::Turning {
                 yaw_rate_dps: self.max_yaw.to_degrees(),
@@ -232,14 +259,16 @@ impl WindowIntegrator {
         let heading = s.q0 * Vector3::x();
         let along = end.x * heading.x + end.y * heading.y;
         let sign = if along >= 0.0 { 1.0 } else { -1.0 };
-        let (len, height) = (self.horizontal_m, end.z);
+        let height = end.z;
         let slope_rad = (sign * height).atan2(len);
-        // Largest distance of the trajectory from the chord joining its ends (Fig. 11).
-        let norm = len.hypot(height);
+        // Largest distance of the whole walked path from the chord joining its ends
+        // (Fig. 11), the part past the window included.
+        let (xl, zl) = self.track.last().copied().unwrap_or((len, height));
+        let norm = xl.hypot(zl).max(1e-9);
         let dev = self
             .track
             .iter()
-            .map(|&(x, z)| (z * len - x * height).abs() / norm)
+            .map(|&(x, z)| (z * xl - x * zl).abs() / norm)
             .fold(0.0, f64::max);
         if dev > s.max_chord_deviation_m {
             return Err(RejectReason::SlopeNotConstant {
@@ -270,6 +299,7 @@ mod tests {
             gravity_mps2: G,
             lever_arm_m: Vector3::zeros(),
             distance_m: 2.0,
+            check_extra_m: 0.0,
             max_time_s: 10.0,
             max_gap_s: 0.1,
             max_yaw_rate_rps: 0.05,
