@@ -76,3 +76,16 @@ fn test_road_every_grade_within_0_2_deg() {
         }
     }
 }
+
+#[test]
+fn plots_are_written_as_png() {
+    let r = rows(spec("test-road"), 4, None);
+    let dir = std::env::temp_dir().join(format!("leveld-plots-{}", std::process::id()));
+    leveld::bench::plots::write(&dir, &r)
+        .expect("plots (the test command installs fonts-dejavu-core)");
+    for name in ["estimate-test-road-1P.png", "windows-test-road-5P.png"] {
+        let bytes = std::fs::read(dir.join(name)).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{name}");
+        assert!(bytes.len() > 5_000, "{name} is suspiciously small");
+    }
+}
