@@ -216,7 +216,7 @@ pub struct Estimator {
     /// nominal so that an accelerometer bias along z cancels.
     gravity: Option<GravityFilter>,
     /// Settled samples waiting one stillness window before they join the reference.
-    pending: std::collections::VecDeque<ImuSample>,
+    settle_queue: std::collections::VecDeque<ImuSample>,
     /// The last stillness window was close enough to the bias to update it.
     bias_window_ok: bool,
     fwd: WindowIntegrator,
@@ -248,7 +248,7 @@ impl Estimator {
             standstill: None,
             bias_rps: None,
             bias_window_ok: false,
-            pending: std::collections::VecDeque::with_capacity(
+            settle_queue: std::collections::VecDeque::with_capacity(
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),
             gravity: None,
@@ -700,7 +700,7 @@ impl Estimator {
         // From here on the wheels are watched; before, motion may have gone unseen.
         let motion_unknown = self.motion_unknown && !moved;
         self.motion_unknown = false;
-        self.pending.clear();
+        self.settle_queue.clear();
         self.standstill = Some(Standstill {
             t_rest_s: self.hist.get(rest).t_s,
             seg_sum: Vector3::zeros(),
@@ -750,16 +750,16 @@ impl Estimator {
         }
         // Samples join the reference only once a further stillness window has passed:
         // the last ones before a drive-off are already moving.
-        if self.pending.len() == self.pending.capacity() {
-            self.pending.pop_front();
+        if self.settle_queue.len() == self.settle_queue.capacity() {
+            self.settle_queue.pop_front();
         }
-        self.pending.push_back(*s);
+        self.settle_queue.push_back(*s);
         let lag = 2.0 * self.cfg.still_window_s;
-        while let Some(x) = self.pending.front().copied() {
+        while let Some(x) = self.settle_queue.front().copied() {
             if s.t_s - x.t_s < lag {
                 break;
             }
-            self.pending.pop_front();
+            self.settle_queue.pop_front();
             self.commit_settled(&x, emit);
         }
     }
