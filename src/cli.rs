@@ -99,6 +99,9 @@ pub enum BenchCmd {
         plots: Option<PathBuf>,
         #[arg(long)]
         threads: Option<usize>,
+        /// Compare leveld with each improvement beyond the paper switched off instead.
+        #[arg(long)]
+        ablation: bool,
     },
 }
 
@@ -183,11 +186,13 @@ pub fn run(cli: Cli) -> Result<i32> {
                 format,
                 plots,
                 threads,
+                ablation,
             } => crate::report::bench_accuracy(
                 &scenarios,
                 format == Format::Json,
                 plots.as_deref(),
                 threads,
+                ablation,
             ),
         },
         Command::Simulate { what } => match what {

@@ -377,6 +377,7 @@ pub fn bench_accuracy(
     json: bool,
     plots: Option<&std::path::Path>,
     threads: Option<usize>,
+    ablation: bool,
 ) -> Result<i32> {
     use anyhow::Context;
     let files: Vec<std::path::PathBuf> = if scenarios.is_empty() {
@@ -403,7 +404,12 @@ pub fn bench_accuracy(
             .map(|n| n.get())
             .unwrap_or(1)
     });
-    let rows = crate::bench::accuracy::run(&cases, threads);
+    let make = if ablation {
+        crate::bench::accuracy::ablation
+    } else {
+        crate::bench::accuracy::methods
+    };
+    let rows = crate::bench::accuracy::run(&cases, threads, make);
     let mut out = std::io::stdout().lock();
     if json {
         for r in &rows {

@@ -33,6 +33,53 @@ pub struct Row {
     pub window_grades_deg: Vec<f64>,
 }
 
+/// leveld with one improvement beyond the paper switched off at a time, and all of them
+/// off ("paper-like"; the rest edge, settled reference and gravity filter stay).
+pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
+    let d = EstimatorConfig::default;
+    let no_lever = EstimatorConfig {
+        lever_arm_m: [0.0; 3],
+        ..d()
+    };
+    let no_turn = EstimatorConfig {
+        max_yaw_rate_dps: 1e3,
+        max_lateral_acc_mps2: 1e3,
+        ..d()
+    };
+    let no_ext = EstimatorConfig {
+        chord_check_extra_m: 0.0,
+        ..d()
+    };
+    let no_load = EstimatorConfig {
+        load_change_deg: 90.0,
+        ..d()
+    };
+    let paper = EstimatorConfig {
+        averaging: Averaging::Mean,
+        lever_arm_m: [0.0; 3],
+        max_yaw_rate_dps: 1e3,
+        max_lateral_acc_mps2: 1e3,
+        chord_check_extra_m: 0.0,
+        load_change_deg: 90.0,
+        ..d()
+    };
+    vec![
+        Box::new(Leveld::new(d(), "leveld")),
+        Box::new(Leveld::new(
+            EstimatorConfig {
+                averaging: Averaging::Mean,
+                ..d()
+            },
+            "eq17-average",
+        )),
+        Box::new(Leveld::new(no_lever, "no-lever-arm")),
+        Box::new(Leveld::new(no_turn, "no-turn-check")),
+        Box::new(Leveld::new(no_ext, "no-extended-chord")),
+        Box::new(Leveld::new(no_load, "no-load-step")),
+        Box::new(Leveld::new(paper, "paper-like")),
+    ]
+}
+
 /// The methods compared.
 pub fn methods() -> Vec<Box<dyn PitchMethod>> {
     let eq17 = EstimatorConfig {
@@ -138,7 +185,7 @@ pub fn run_case(case: &Case, make: &dyn Fn() -> Vec<Box<dyn PitchMethod>>) -> Ve
 }
 
 /// Run cases on `threads` threads; rows in case order.
-pub fn run(cases: &[Case], threads: usize) -> Vec<Row> {
+pub fn run(cases: &[Case], threads: usize, make: fn() -> Vec<Box<dyn PitchMethod>>) -> Vec<Row> {
     let mut out: Vec<Vec<Row>> = vec![Vec::new(); cases.len()];
     std::thread::scope(|sc| {
         let chunk = cases.len().div_ceil(threads.max(1)).max(1);
@@ -146,7 +193,7 @@ pub fn run(cases: &[Case], threads: usize) -> Vec<Row> {
             let _ = ci;
             sc.spawn(move || {
                 for (c, slot) in cs.iter().zip(slots.iter_mut()) {
-                    *slot = run_case(c, &methods);
+                    *slot = run_case(c, &make);
                 }
             });
         }
