@@ -7,8 +7,8 @@
 # (kernels built without CAN), it runs inside a small qemu VM under software
 # emulation: Debian's kernel (fetched once and cached), a busybox initramfs that loads
 # the CAN and 9p modules, and this machine's own root file system mounted read-only,
-# with a tmpfs on /tmp. The command runs as root in the current directory; its exit
-# status is carried out of the VM.
+# with a tmpfs on /run as TMPDIR. The command runs as root in the current directory;
+# its exit status is carried out of the VM.
 set -euo pipefail
 [ $# -ge 1 ] || { echo "usage: $0 COMMAND [ARGS...]" >&2; exit 2; }
 
@@ -78,9 +78,9 @@ mount -t devtmpfs dev /dev
 for m in $(cat /modules.order); do insmod /lib/modules/$m.ko 2>/dev/null; done
 out=$(sed -n 's/.*leveld.out=\([^ ]*\).*/\1/p' /proc/cmdline)
 mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 host /host || echo "vcan-vm: 9p root mount failed"
-mount -t tmpfs tmp /host/tmp
+# Scratch space on /run; /tmp stays the host's, where the work tree may live.
 mount -t tmpfs run /host/run
-mkdir -p "/host$out" 2>/dev/null
+mkdir -p /host/run/leveld-tmp
 mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 out "/host$out" || echo "vcan-vm: 9p out mount failed"
 mount -o bind /proc /host/proc
 mount -o bind /sys /host/sys
@@ -101,7 +101,7 @@ out=$(mktemp -d "${TMPDIR:-/tmp}/leveld-vm.XXXXXX")
 out=$(realpath "$out")
 {
   echo "set -u"
-  echo "export PATH='$PATH' HOME=/root LANG=C.UTF-8 LEVELD_IN_VM=1"
+  echo "export PATH='$PATH' HOME=/root LANG=C.UTF-8 LEVELD_IN_VM=1 TMPDIR=/run/leveld-tmp"
   for v in RUST_BACKTRACE LEVELD_LOG CARGO_MANIFEST_DIR; do
     [ -n "${!v:-}" ] && printf 'export %s=%q\n' "$v" "${!v}"
   done
