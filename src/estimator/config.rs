@@ -82,7 +82,7 @@ impl Default for EstimatorConfig {
     fn default() -> Self {
         Self {
             zero_speed_kmh: 0.1,
-            zero_speed_time_s: 0.5,
+            zero_speed_time_s: 1.0,
             still_time_s: 0.5,
             still_window_s: 0.2,
             still_acc_std_mps2: 0.15,

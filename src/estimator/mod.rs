@@ -529,6 +529,7 @@ impl Estimator {
         let gyro_ok = std_max(sg, qg).to_degrees() <= self.cfg.still_gyro_std_dps;
         let offset_dps = self.bias_rps.map(|b| (sg / kf - b).norm().to_degrees());
         let mean_ok = offset_dps.is_none_or(|o| o <= self.cfg.still_gyro_dps);
+
         self.bias_window_ok = offset_dps.is_none_or(|o| o <= self.cfg.bias_gate_dps);
         acc_ok && gyro_ok && mean_ok
     }
@@ -715,7 +716,6 @@ impl Estimator {
             motion_unknown,
             settled_done: false,
         });
-        self.travelled_m = 0.0;
         let pitch = pitch_from(&f_rest).unwrap_or(0.0);
         emit(Event::StandstillStarted {
             t_s: t_now,
@@ -858,6 +858,10 @@ impl Estimator {
             }
             _ => self.baseline_pitch_rad = Some(pitch),
         }
+        // The baseline now stands here: odometry counts from this stop. (A standstill
+        // that never settles, such as one declared while still rolling below the
+        // wheel sensors' dead zone, must not reset it.)
+        self.travelled_m = 0.0;
         if !st.moved {
             return;
         }
@@ -923,7 +927,6 @@ impl Estimator {
             t_s: t_now,
             duration_s: t_now - st.t_rest_s,
         });
-        self.travelled_m = 0.0;
         let q_ref = if st.seg_n >= 5 {
             attitude_from_gravity(&st.mean())
         } else {
