@@ -392,3 +392,30 @@ fn a_mirrored_bus_takes_over_when_the_source_goes_silent() {
     assert_eq!((w.checksum_errors, w.counter_errors), (0, 0), "{w:?}");
     assert_eq!(p.status(), Status::Valid, "{:?}", p.estimate());
 }
+
+#[test]
+fn an_unusable_estimator_state_keeps_the_calibration_and_the_file() {
+    let d = tmp("badest");
+    let path = d.join("state.json");
+    let mut st = leveld::daemon::state::PersistedState {
+        format: leveld::daemon::state::PersistedState::FORMAT,
+        estimator: pipeline().est.state(),
+        reference_pitch_deg: Some(0.37),
+    };
+    st.estimator.format = 99; // written by another version
+    leveld::daemon::state::save(&path, &st).unwrap();
+    let mut p = pipeline();
+    assert_eq!(
+        leveld::daemon::live::restore(&mut p, &path),
+        Some(0.37),
+        "the EOL reference must survive"
+    );
+    assert!(!path.exists());
+    let moved = d.join("state.json.corrupt-1");
+    let kept: serde_json::Value = serde_json::from_slice(&std::fs::read(moved).unwrap()).unwrap();
+    assert_eq!(
+        kept["estimator"]["format"], 99,
+        "the bad file is moved aside, not deleted"
+    );
+    assert!(p.estimate().is_none(), "fresh estimator");
+}

@@ -118,24 +118,6 @@ impl Database {
         (v > 0.0).then_some(v as u64)
     }
 
-    /// Signals of a message as (name, codec, unit), in DBC order.
-    pub fn signals_of(
-        &self,
-        message: &str,
-    ) -> Result<Vec<(String, SignalCodec, String)>, DbcError> {
-        let m = self.message_by_name(message)?;
-        m.signals
-            .iter()
-            .map(|s| {
-                Ok((
-                    s.name.clone(),
-                    self.signal(message, &s.name)?,
-                    s.unit.clone(),
-                ))
-            })
-            .collect()
-    }
-
     pub fn signal(&self, message: &str, signal: &str) -> Result<SignalCodec, DbcError> {
         let m = self.message_by_name(message)?;
         let s = m

@@ -43,16 +43,14 @@ pub fn from_log(
             if interface.is_none_or(|i| i == f.iface()) && !f.fd {
                 p.on_can_frame(f.t_s, &f, &mut Quiet);
                 if let Some((pitch, settled)) = p.est.standstill_pitch() {
-                    best = Some(Calibration {
+                    let cal = Calibration {
                         reference_pitch_deg: pitch,
                         settled_s: settled,
-                    });
+                    };
                     if settled >= duration_s {
-                        return Ok(best.unwrap_or(Calibration {
-                            reference_pitch_deg: pitch,
-                            settled_s: settled,
-                        }));
+                        return Ok(cal);
                     }
+                    best = Some(cal);
                 }
             }
         }

@@ -155,8 +155,10 @@ fn open_all(
     Ok((all, out))
 }
 
-/// Restore persisted state into the pipeline.
-pub fn restore(p: &mut Pipeline, path: &Path) {
+/// Restore persisted state into the pipeline; returns the end-of-line reference pitch.
+/// The reference survives an estimator part that cannot be used: the calibration is
+/// kept in the next save even though the file itself is moved aside.
+pub fn restore(p: &mut Pipeline, path: &Path) -> Option<f64> {
     match state::load(path) {
         Loaded::State(st) => {
             if let Some(r) = st.reference_pitch_deg {
@@ -168,13 +170,18 @@ pub fn restore(p: &mut Pipeline, path: &Path) {
                 }
                 Err(e) => {
                     let moved = state::move_aside(path);
-                    tracing::warn!(path = %path.display(), moved_to = ?moved, "state not usable ({e}); starting fresh");
+                    tracing::warn!(path = %path.display(), moved_to = ?moved, "estimator state not usable ({e}); starting fresh, keeping the reference pitch");
                 }
             }
+            st.reference_pitch_deg
         }
-        Loaded::Missing => tracing::info!(path = %path.display(), "no saved state; first start"),
+        Loaded::Missing => {
+            tracing::info!(path = %path.display(), "no saved state; first start");
+            None
+        }
         Loaded::Corrupt { reason, moved_to } => {
-            tracing::warn!(path = %path.display(), ?moved_to, "state file unusable ({reason}); moved aside, starting fresh")
+            tracing::warn!(path = %path.display(), ?moved_to, "state file unusable ({reason}); moved aside, starting fresh");
+            None
         }
     }
 }
@@ -212,11 +219,7 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
     }
     let mut p = Pipeline::new(&cfg, &db)?;
     let state_path = cfg.state.path.clone();
-    restore(&mut p, &state_path);
-    let reference = match state::load(&state_path) {
-        Loaded::State(s) => s.reference_pitch_deg,
-        _ => None,
-    };
+    let reference = restore(&mut p, &state_path);
     let ids = p.input_ids();
     let mut stats = LiveStats::default();
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;

@@ -417,10 +417,6 @@ impl Pipeline {
         &self.inputs[slot]
     }
 
-    pub fn reference_pitch_deg(&self) -> f64 {
-        self.reference_pitch_deg
-    }
-
     pub fn set_reference_pitch_deg(&mut self, v: f64) {
         self.reference_pitch_deg = v;
     }
@@ -433,12 +429,6 @@ impl Pipeline {
     /// Restore persisted estimator state.
     pub fn restore(&mut self, st: &EstimatorState) -> Result<(), crate::estimator::StateError> {
         self.est.restore(st)
-    }
-
-    pub fn inputs_ok(&self) -> bool {
-        self.st
-            .iter()
-            .all(|s| !s.lost && !s.invalid && s.last_good_s.is_some())
     }
 
     /// Current status as sent.

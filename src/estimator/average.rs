@@ -39,16 +39,8 @@ impl Averager {
         }
     }
 
-    pub fn mode(&self) -> Averaging {
-        self.mode
-    }
-
     pub fn accepted(&self) -> u64 {
         self.accepted
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
     }
 
     /// Add one window value, deg.
@@ -76,12 +68,6 @@ impl Averager {
                 self.push_weighted(c.value_deg + delta_deg, w);
             }
         }
-    }
-
-    /// Drop everything.
-    pub fn clear(&mut self) {
-        self.entries.clear();
-        self.accepted = 0;
     }
 
     /// Current combined value; `None` before any window.

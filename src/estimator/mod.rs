@@ -267,10 +267,6 @@ impl Estimator {
         })
     }
 
-    pub fn config(&self) -> &EstimatorConfig {
-        &self.cfg
-    }
-
     /// Current estimate, `None` before the first accepted window.
     pub fn estimate(&self) -> Option<Estimate> {
         self.estimate
@@ -599,22 +595,24 @@ impl Estimator {
         let up = Vector3::new(0.0, 0.0, g);
         let mut q = q_ref;
         let mut res = [0.0f64; AVG];
+        // Attitudes of the last AVG samples visited, the one at `edge` among them.
+        let mut qs = [q_ref; AVG];
         let (mut edge, mut q_edge) = (from, q_ref);
         let mut i = from;
         let mut k = 0usize;
         loop {
             let x = self.hist.get(i);
             res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x;
+            qs[k % AVG] = q;
             k += 1;
             if k >= AVG {
                 if (res.iter().sum::<f64>() / AVG as f64).abs() > tol {
                     break;
                 }
-                // The newest sample of this window is certainly at rest.
+                // The newest sample of this window is certainly at rest; its attitude
+                // was visited AVG - 1 steps ago.
                 edge = i + AVG - 1;
-            }
-            if edge == i + AVG - 1 {
-                q_edge = self.carry(q, i, edge);
+                q_edge = qs[k % AVG];
             }
             if i == 0 || i <= lowest {
                 break;

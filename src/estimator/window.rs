@@ -151,15 +151,6 @@ impl WindowIntegrator {
         self.active
     }
 
-    pub fn cancel(&mut self) {
-        self.active = false;
-    }
-
-    /// Distance covered so far, m.
-    pub fn distance_m(&self) -> f64 {
-        self.horizontal_m
-    }
-
     /// Feed the next sample of the walk (later in time going forward, earlier going backward).
     pub fn push(&mut self, s: &ImuSample) -> Step {
         if !self.active {
