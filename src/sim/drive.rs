@@ -251,8 +251,17 @@ pub fn simulate(sc: &Scenario) -> Drive {
             }
         }
 
-        // Integrate to the next grid point.
-        let v_next = (v + a_long * h).max(0.0);
+        // Integrate to the next grid point, splitting a step that crosses a segment end
+        // (a brake segment ends exactly at rest; rounding it to the grid would leave
+        // the car creeping at up to a*h through the following stop).
+        let a_step = match (seg < segs.len(), segs.get(seg + 1)) {
+            (true, Some(next)) if t + h > seg_t0 + segs[seg].duration_s => {
+                let before = seg_t0 + segs[seg].duration_s - t;
+                (a_long * before + next.accel_mps2 * (h - before)) / h
+            }
+            _ => a_long,
+        };
+        let v_next = (v + a_step * h).max(0.0);
         s += 0.5 * (v + v_next) * h;
         v = v_next;
         let target = veh.pitch_per_accel_deg.to_radians() * a_long;
