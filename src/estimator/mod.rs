@@ -24,7 +24,7 @@ pub use types::{ImuSample, WheelSpeeds};
 pub use window::RejectReason;
 
 use attitude::{attitude_from_gravity, pitch_of};
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use ring::Ring;
 use serde::{Deserialize, Serialize};
 use window::{Step, WindowIntegrator, WindowSetup};
@@ -134,9 +134,12 @@ pub struct EstimatorState {
     /// Standstill IMU pitch of the current load, deg: the load baseline.
     pub baseline_pitch_deg: Option<f64>,
     pub last_road_slope_deg: Option<f64>,
-    /// Settled specific-force magnitude, m/s^2.
+    /// Settled specific-force magnitude (bias along z included), m/s^2.
     #[serde(default)]
     pub gravity_mps2: Option<f64>,
+    /// Accelerometer bias along body x and y as seen in the standstill magnitude, m/s^2.
+    #[serde(default)]
+    pub accel_bias_xy_mps2: Option<[f64; 2]>,
 }
 
 impl EstimatorState {
@@ -313,7 +316,8 @@ impl Estimator {
             gyro_bias_dps: self.gyro_bias_dps(),
             baseline_pitch_deg: self.baseline_pitch_rad.map(f64::to_degrees),
             last_road_slope_deg: self.last_road_slope_deg(),
-            gravity_mps2: self.gravity.map(|g| g.g),
+            gravity_mps2: self.gravity.map(|g| g.x.x),
+            accel_bias_xy_mps2: self.gravity.map(|g| [g.x.y, g.x.z]),
         }
     }
 
@@ -361,15 +365,18 @@ impl Estimator {
                 return Err(StateError::Implausible("gravity_mps2"));
             }
         }
+        if let Some(b) = st.accel_bias_xy_mps2 {
+            if b.iter().any(|x| !x.is_finite() || x.abs() > 2.0) {
+                return Err(StateError::Implausible("accel_bias_xy_mps2"));
+            }
+        }
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         self.motion_unknown = true;
-        // A restored magnitude counts as a few seconds of evidence; new stops refine it.
-        // A restored magnitude is as uncertain as a few seconds of standstill.
-        self.gravity = st.gravity_mps2.map(|g| GravityFilter {
-            g,
-            p: 1e-5,
-            r: 1e-3,
-            last_t: None,
+        // A restored magnitude is as uncertain as a few seconds of standstill; new stops
+        // refine it.
+        self.gravity = st.gravity_mps2.map(|g| {
+            let bias = st.accel_bias_xy_mps2.unwrap_or([0.0; 2]);
+            GravityFilter::new(g, 1e-5, bias, 0.01)
         });
         self.refresh_estimate();
         Ok(())
@@ -593,6 +600,8 @@ impl Estimator {
         let lowest = floor.saturating_sub(200);
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, g);
+        let lever = Vector3::from(self.cfg.lever_arm_m);
+        let last = self.hist.len() - 1;
         let mut q = q_ref;
         let mut res = [0.0f64; AVG];
         // Attitudes of the last AVG samples visited, the one at `edge` among them.
@@ -602,7 +611,22 @@ impl Estimator {
         let mut k = 0usize;
         loop {
             let x = self.hist.get(i);
-            res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x;
+            // The IMU rides the rocking body at the lever arm: remove its tangential and
+            // centripetal acceleration (rate from the gyro, angular acceleration from
+            // central differences of it).
+            let w = x.gyro_rps() - bias;
+            let (a, b) = (
+                self.hist.get(i.saturating_sub(1)),
+                self.hist.get((i + 1).min(last)),
+            );
+            let span = b.t_s - a.t_s;
+            let alpha = if span > 0.0 {
+                (b.gyro_rps() - a.gyro_rps()) / span
+            } else {
+                Vector3::zeros()
+            };
+            let lever_acc = alpha.cross(&lever) + w.cross(&w.cross(&lever));
+            res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
             qs[k % AVG] = q;
             k += 1;
             if k >= AVG {
@@ -625,26 +649,55 @@ impl Estimator {
         (edge.min(from), q_edge)
     }
 
-    /// Bias-corrected body rate at sample `i` from a local quadratic fit over +-10
-    /// samples (Savitzky-Golay): the velocity of an IMU still rocking about the pitch
-    /// centre at a walk start. A single sample's noise times a 2 m lever arm would cost
-    /// about 0.1 deg of slope; a plain mean would flatten the ~1.5 Hz rocking.
-    fn mean_rate(&self, i: usize) -> Vector3<f64> {
-        const M: usize = 10;
+    /// Velocity of the IMU at sample `i` (frame of its attitude `q_i`, m/s) while the
+    /// pitch centre is at rest but the body may still rock on its suspension. Each rest
+    /// sample j on the `later` side gives omega_j x lever arm, carried to `i` by the
+    /// integrated acceleration between them; the mean over `REST_VELOCITY_S` averages
+    /// out gyro noise (a single sample's noise times a 2 m lever arm costs about 0.1 deg
+    /// of slope). Smoothing the rate at `i` itself instead is biased right at the stop,
+    /// where the rocking starts with a kink. The first `SKIP` samples are left out in
+    /// case `i` is a step early.
+    fn rest_velocity(
+        &self,
+        q_i: UnitQuaternion<f64>,
+        i: usize,
+        later: bool,
+        g: f64,
+    ) -> Vector3<f64> {
+        const REST_VELOCITY_S: f64 = 0.25;
+        const SKIP: usize = 2;
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
-        if i < M || i + M >= self.hist.len() {
-            return self.hist.get(i).gyro_rps() - bias;
+        let lever = Vector3::from(self.cfg.lever_arm_m);
+        let up = Vector3::new(0.0, 0.0, g);
+        let n = self.hist.len();
+        let t_i = self.hist.get(i).t_s;
+        let (mut q, mut dv) = (q_i, Vector3::zeros());
+        let (mut sum, mut count) = (Vector3::zeros(), 0usize);
+        let mut j = i;
+        loop {
+            let next = if later { j + 1 } else { j.wrapping_sub(1) };
+            if next >= n {
+                break;
+            }
+            let (a, b) = (self.hist.get(j), self.hist.get(next));
+            if (b.t_s - t_i).abs() > REST_VELOCITY_S {
+                break;
+            }
+            let dt = b.t_s - a.t_s;
+            let q_next = attitude::propagate(&q, &((a.gyro_rps() + b.gyro_rps()) * 0.5 - bias), dt);
+            // dv = v_next - v_i, in time order whichever way the walk goes.
+            dv += ((q * a.acc() - up) + (q_next * b.acc() - up)) * (0.5 * dt);
+            q = q_next;
+            j = next;
+            if j.abs_diff(i) > SKIP {
+                sum += q * (b.gyro_rps() - bias).cross(&lever) - dv;
+                count += 1;
+            }
         }
-        // Centre weights of the quadratic smoother: (3(3m^2+3m-1) - 15 k^2) / norm.
-        let m = M as f64;
-        let norm = (2.0 * m - 1.0) * (2.0 * m + 1.0) * (2.0 * m + 3.0) / 3.0;
-        let mut w = Vector3::zeros();
-        for j in 0..=2 * M {
-            let k = j as f64 - m;
-            let c = (3.0 * m * m + 3.0 * m - 1.0 - 5.0 * k * k) / norm;
-            w += self.hist.get(i + j - M).gyro_rps() * c;
+        if count == 0 {
+            return q_i * (self.hist.get(i).gyro_rps() - bias).cross(&lever);
         }
-        w - bias
+        sum / count as f64
     }
 
     /// Carry an attitude along the history from sample `from` to sample `to` with the
@@ -728,18 +781,19 @@ impl Estimator {
 
     fn update_gravity(&mut self, t_s: f64, f: &Vector3<f64>) {
         let q = self.cfg.gravity_walk_mps2_rts;
-        let m = f.norm();
-        let k = self.gravity.get_or_insert(GravityFilter {
-            g: m,
-            p: 1e-3,
-            r: 1e-3,
-            last_t: None,
+        let k = self.gravity.get_or_insert_with(|| {
+            GravityFilter::new(f.norm(), 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
         });
-        k.update(t_s, m, q);
+        k.update(t_s, f, q);
     }
 
-    fn gravity_mps2(&self, fallback: f64) -> f64 {
-        self.gravity.map_or(fallback, |g| g.g)
+    /// Gravity magnitude for a window whose reference is the standstill mean `f_mean`.
+    fn gravity_mps2(&self, f_mean: &Vector3<f64>) -> f64 {
+        let m = f_mean.norm();
+        match self.gravity {
+            Some(g) if m > 0.0 => g.magnitude(&(f_mean / m)),
+            _ => m,
+        }
     }
 
     fn update_standstill(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
@@ -762,9 +816,39 @@ impl Estimator {
         }
     }
 
+    /// Acceleration of the IMU at history sample `i` from the body still rocking about
+    /// the pitch centre (angular acceleration and rate from smoothed gyro readings), in
+    /// body axes, m/s^2. Mounted 2 m ahead of the pitch centre, the IMU sees a rocking
+    /// tail of 0.1 deg/s as 1 mm/s^2 in the standstill mean: 0.05 deg of slope over a
+    /// gentle 2 s window.
+    fn lever_acc_at(&self, i: usize) -> Vector3<f64> {
+        const H: usize = 5;
+        let lever = Vector3::from(self.cfg.lever_arm_m);
+        if i < 2 * H || i + 2 * H >= self.hist.len() || lever == Vector3::zeros() {
+            return Vector3::zeros();
+        }
+        let rate = |c: usize| {
+            let mut w = Vector3::zeros();
+            for j in c - H..=c + H {
+                w += self.hist.get(j).gyro_rps();
+            }
+            w / (2 * H + 1) as f64
+        };
+        let span = self.hist.get(i + H).t_s - self.hist.get(i - H).t_s;
+        if span <= 0.0 {
+            return Vector3::zeros();
+        }
+        let alpha = (rate(i + H) - rate(i - H)) / span;
+        let w = rate(i) - self.bias_rps.unwrap_or_else(Vector3::zeros);
+        alpha.cross(&lever) + w.cross(&w.cross(&lever))
+    }
+
     fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
         self.update_bias(s);
-        self.update_gravity(s.t_s, &s.acc());
+        // The gravity reference is the specific force of the pitch centre: what the IMU
+        // would read without the rocking tail.
+        let f = s.acc() - self.lever_acc_at(self.index_at(s.t_s));
+        self.update_gravity(s.t_s, &f);
         let block_s = self.cfg.load_block_s;
         let settle_s = self.cfg.settle_time_s;
         let deadline_s = self.cfg.history_s - self.cfg.max_window_time_s - 1.0;
@@ -778,7 +862,7 @@ impl Estimator {
             st.block_t0_s = s.t_s;
         }
         if !st.settled_done {
-            st.seg_sum += s.acc();
+            st.seg_sum += f;
             st.seg_n += 1;
             st.seg_last_s = s.t_s;
             // Wait for a long gravity average, but not so long that the history loses
@@ -789,7 +873,7 @@ impl Estimator {
             return;
         }
         st.seg_last_s = s.t_s;
-        st.block_sum += s.acc();
+        st.block_sum += f;
         st.block_n += 1;
         if s.t_s - st.block_t0_s < block_s {
             return;
@@ -870,7 +954,7 @@ impl Estimator {
             self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
             return;
         }
-        let g = self.gravity_mps2(st.mean().norm());
+        let g = self.gravity_mps2(&st.mean());
         let (rest, q0) = self.rocking_rest_edge(
             q_ref,
             self.index_at(st.seg_first_s),
@@ -878,7 +962,8 @@ impl Estimator {
             g,
         );
         let setup = self.window_setup(q0, g);
-        self.bwd.start(setup, self.mean_rate(rest));
+        let v0 = self.rest_velocity(q0, rest, true, g);
+        self.bwd.start(setup, v0);
         let mut result = None;
         for i in (0..=rest).rev() {
             if let Step::Done(r) = self.bwd.push(&self.hist.get(i)) {
@@ -961,15 +1046,15 @@ impl Estimator {
         let first = first.saturating_sub(2).max(floor);
         let last_settled = self.index_at(st.seg_last_s).min(n - 1);
         let q0 = self.carry(q_ref, last_settled, first);
-        let setup = self.window_setup(q0, self.gravity_mps2(g_mean.norm()));
+        let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
         let settled_at_start = st.seg_n >= 5 && self.hist.get(first).t_s - st.seg_last_s < 1.0;
-        let omega0 = if settled_at_start {
+        let v0 = if settled_at_start {
             Vector3::zeros()
         } else {
-            self.mean_rate(first)
+            self.rest_velocity(q0, first, false, setup.gravity_mps2)
         };
-        self.fwd.start(setup, omega0);
+        self.fwd.start(setup, v0);
         self.fwd_ctx = Some(ForwardCtx {
             imu_pitch_rad: pitch_of(&q_ref),
         });
@@ -1069,30 +1154,64 @@ fn pitch_from(f: &Vector3<f64>) -> Option<f64> {
     attitude::pitch_roll_from_gravity(f).map(|(p, _)| p)
 }
 
-/// Scalar Kalman filter on the standstill specific-force magnitude. The accelerometer
-/// bias drifts (temperature), so the magnitude is a random walk of
-/// `gravity_walk_mps2_rts`; each settled sample measures it with a noise learnt from
-/// the data. Long stops average long; a drifting bias is followed.
+/// Kalman filter on the standstill specific-force magnitude. An accelerometer bias `b`
+/// makes the magnitude depend on where gravity points in the body: |g u + b| is about
+/// c + b_x u_x + b_y u_y for the unit gravity direction u (b_z folds into c). A window
+/// cancels the bias only with the magnitude of its own stop (the reference the attitude
+/// came from); a single short stop measures it noisily, a plain average over stops
+/// misses the bias term by up to |b| sin(pitch), 4 mm/s^2 for 0.05 m/s^2 at 5 deg:
+/// 0.25 deg of slope over a 2 s window. So the state is (c, b_x, b_y), each a random
+/// walk of `gravity_walk_mps2_rts` (the bias drifts with temperature); each settled
+/// sample measures the magnitude with a noise learnt from the innovations.
 #[derive(Debug, Clone, Copy)]
 struct GravityFilter {
-    g: f64,
-    /// Variance of `g`, (m/s^2)^2.
-    p: f64,
-    /// Per-sample measurement variance, (m/s^2)^2, learnt from the innovations.
+    x: Vector3<f64>,
+    /// Covariance of `x`.
+    p: Matrix3<f64>,
+    /// Per-sample measurement variance, (m/s^2)^2.
     r: f64,
     last_t: Option<f64>,
 }
 
 impl GravityFilter {
-    fn update(&mut self, t_s: f64, m: f64, q: f64) {
+    /// Prior spread of the horizontal bias terms, m/s^2 (a MEMS accelerometer offset).
+    const BIAS_PRIOR_MPS2: f64 = 0.1;
+
+    fn new(c: f64, c_var: f64, bias: [f64; 2], bias_sd: f64) -> Self {
+        let b2 = bias_sd * bias_sd;
+        Self {
+            x: Vector3::new(c, bias[0], bias[1]),
+            p: Matrix3::from_diagonal(&Vector3::new(c_var, b2, b2)),
+            r: 1e-3,
+            last_t: None,
+        }
+    }
+
+    fn regressor(u: &Vector3<f64>) -> Vector3<f64> {
+        Vector3::new(1.0, u.x, u.y)
+    }
+
+    /// Expected magnitude for gravity along the body direction `u` (unit), m/s^2.
+    fn magnitude(&self, u: &Vector3<f64>) -> f64 {
+        Self::regressor(u).dot(&self.x)
+    }
+
+    fn update(&mut self, t_s: f64, f: &Vector3<f64>, q: f64) {
+        let m = f.norm();
+        if m <= 0.0 {
+            return;
+        }
         if let Some(t0) = self.last_t {
-            self.p += q * q * (t_s - t0).max(0.0);
+            let walk = q * q * (t_s - t0).max(0.0);
+            self.p += Matrix3::from_diagonal_element(walk);
         }
         self.last_t = Some(t_s);
-        let y = m - self.g;
+        let h = Self::regressor(&(f / m));
+        let y = m - h.dot(&self.x);
         self.r = (0.995 * self.r + 0.005 * y * y).max(1e-8);
-        let k = self.p / (self.p + self.r);
-        self.g += k * y;
-        self.p *= 1.0 - k;
+        let ph = self.p * h;
+        let k = ph / (h.dot(&ph) + self.r);
+        self.x += k * y;
+        self.p -= k * ph.transpose();
     }
 }

@@ -127,13 +127,13 @@ impl WindowIntegrator {
         }
     }
 
-    /// Start a new walk with the pitch centre at rest. `omega0_rps` is the body rate at
-    /// the start sample (bias removed): a body still rocking about the pitch centre
-    /// moves the IMU at omega x lever arm.
-    pub fn start(&mut self, setup: WindowSetup, omega0_rps: Vector3<f64>) {
+    /// Start a new walk with the pitch centre at rest. `v0_mps` is the IMU's velocity at
+    /// the start sample in the frame of `setup.q0`: zero for a settled body, the swing
+    /// about the pitch centre (omega x lever arm) for one still rocking.
+    pub fn start(&mut self, setup: WindowSetup, v0_mps: Vector3<f64>) {
         self.setup = setup;
         self.q = setup.q0;
-        self.v = setup.q0 * omega0_rps.cross(&setup.lever_arm_m);
+        self.v = v0_mps;
         self.p = Vector3::zeros();
         self.lever0 = setup.q0 * setup.lever_arm_m;
         self.prev = None;
