@@ -102,6 +102,10 @@ pub enum BenchCmd {
         /// Compare leveld with each improvement beyond the paper switched off instead.
         #[arg(long)]
         ablation: bool,
+        /// Run every scenario with this many seeds (its own, then the next ones) and
+        /// print the pooled results.
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        seeds: u64,
     },
 }
 
@@ -187,12 +191,14 @@ pub fn run(cli: Cli) -> Result<i32> {
                 plots,
                 threads,
                 ablation,
+                seeds,
             } => crate::report::bench_accuracy(
                 &scenarios,
                 format == Format::Json,
                 plots.as_deref(),
                 threads,
                 ablation,
+                seeds,
             ),
         },
         Command::Simulate { what } => match what {

@@ -378,6 +378,7 @@ pub fn bench_accuracy(
     plots: Option<&std::path::Path>,
     threads: Option<usize>,
     ablation: bool,
+    seeds: u64,
 ) -> Result<i32> {
     use anyhow::Context;
     let files: Vec<std::path::PathBuf> = if scenarios.is_empty() {
@@ -392,12 +393,19 @@ pub fn bench_accuracy(
         scenarios.to_vec()
     };
     let mut cases = Vec::new();
+    // Plots show each scenario with its own seed.
+    let mut plotted: Vec<(String, u64)> = Vec::new();
     for f in &files {
         let text =
             std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?;
-        let spec = crate::bench::suite::DriveSpec::parse(&text)
+        let mut spec = crate::bench::suite::DriveSpec::parse(&text)
             .with_context(|| format!("scenario {} is not valid", f.display()))?;
-        cases.extend(spec.cases());
+        let base = spec.seed;
+        plotted.push((spec.name.clone(), base));
+        for k in 0..seeds {
+            spec.seed = base.wrapping_add(k);
+            cases.extend(spec.cases());
+        }
     }
     let threads = threads.unwrap_or_else(|| {
         std::thread::available_parallelism()
@@ -411,7 +419,38 @@ pub fn bench_accuracy(
     };
     let rows = crate::bench::accuracy::run(&cases, threads, make);
     let mut out = std::io::stdout().lock();
-    if json {
+    if seeds > 1 {
+        let pooled = crate::bench::accuracy::pool(&rows);
+        if json {
+            for p in &pooled {
+                writeln!(out, "{}", serde_json::to_string(p)?)?;
+            }
+        } else {
+            writeln!(
+                out,
+                "| scenario | load | method | seeds | mean abs err | worst drive | p95 window err | accepted | never valid |"
+            )?;
+            writeln!(
+                out,
+                "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+            )?;
+            for p in &pooled {
+                writeln!(
+                    out,
+                    "| {} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {} | {} |",
+                    p.scenario,
+                    p.load,
+                    p.method,
+                    p.seeds,
+                    p.mean_abs_err_deg,
+                    p.worst_mean_abs_err_deg,
+                    p.p95_window_err_deg,
+                    p.accepted,
+                    p.never_valid,
+                )?;
+            }
+        }
+    } else if json {
         for r in &rows {
             writeln!(out, "{}", serde_json::to_string(r)?)?;
         }
@@ -445,7 +484,16 @@ pub fn bench_accuracy(
         }
     }
     if let Some(dir) = plots {
-        crate::bench::plots::write(dir, &rows)?;
+        let shown: Vec<_> = rows
+            .iter()
+            .filter(|r| {
+                plotted
+                    .iter()
+                    .any(|(s, k)| *s == r.scenario && *k == r.seed)
+            })
+            .cloned()
+            .collect();
+        crate::bench::plots::write(dir, &shown)?;
     }
     Ok(0)
 }

@@ -10,6 +10,7 @@ use serde::Serialize;
 #[derive(Debug, Clone, Serialize)]
 pub struct Row {
     pub scenario: String,
+    pub seed: u64,
     pub load: String,
     pub method: String,
     /// Mean of (estimate - truth) from the first converged status on, sampled at 1 Hz, deg.
@@ -151,13 +152,10 @@ pub fn run_case(case: &Case, make: &dyn Fn() -> Vec<Box<dyn PitchMethod>>) -> Ve
                 .map(|(t, v)| (v - drive.truth_at(*t).load_pitch_deg).abs())
                 .collect();
             w.sort_by(f64::total_cmp);
-            let p95 = if w.is_empty() {
-                f64::NAN
-            } else {
-                w[((w.len() as f64 * 0.95).ceil() as usize).clamp(1, w.len()) - 1]
-            };
+            let p95 = percentile95(&w);
             Row {
                 scenario: case.scenario_name.clone(),
+                seed: case.seed,
                 load: case.load.clone(),
                 method: m.name().to_string(),
                 mean_err_deg: if errs.is_empty() { f64::NAN } else { mean },
@@ -182,6 +180,77 @@ pub fn run_case(case: &Case, make: &dyn Fn() -> Vec<Box<dyn PitchMethod>>) -> Ve
             }
         })
         .collect()
+}
+
+/// Rows of several seeds of the same scenario, load case and method, pooled.
+#[derive(Debug, Clone, Serialize)]
+pub struct Pooled {
+    pub scenario: String,
+    pub load: String,
+    pub method: String,
+    pub seeds: usize,
+    /// Mean over the seeds of each drive's mean |error|, deg.
+    pub mean_abs_err_deg: f64,
+    /// The worst drive's mean |error|, deg.
+    pub worst_mean_abs_err_deg: f64,
+    /// 95th percentile of |single window error| over all the seeds' windows, deg.
+    pub p95_window_err_deg: f64,
+    pub accepted: usize,
+    /// Seeds that never reached a converged estimate.
+    pub never_valid: usize,
+}
+
+/// Pool rows by scenario, load case and method (in first-seen order).
+pub fn pool(rows: &[Row]) -> Vec<Pooled> {
+    let mut keys: Vec<(&str, &str, &str)> = Vec::new();
+    for r in rows {
+        let k = (r.scenario.as_str(), r.load.as_str(), r.method.as_str());
+        if !keys.contains(&k) {
+            keys.push(k);
+        }
+    }
+    keys.into_iter()
+        .map(|(s, l, m)| {
+            let group: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.scenario == s && r.load == l && r.method == m)
+                .collect();
+            let finite: Vec<f64> = group
+                .iter()
+                .map(|r| r.mean_abs_err_deg)
+                .filter(|x| x.is_finite())
+                .collect();
+            let mut w: Vec<f64> = group
+                .iter()
+                .flat_map(|r| r.window_errors.iter().map(|e| e.abs()))
+                .collect();
+            w.sort_by(f64::total_cmp);
+            Pooled {
+                scenario: s.to_string(),
+                load: l.to_string(),
+                method: m.to_string(),
+                seeds: group.len(),
+                mean_abs_err_deg: if finite.is_empty() {
+                    f64::NAN
+                } else {
+                    finite.iter().sum::<f64>() / finite.len() as f64
+                },
+                worst_mean_abs_err_deg: finite.iter().copied().fold(f64::NAN, f64::max),
+                p95_window_err_deg: percentile95(&w),
+                accepted: group.iter().map(|r| r.accepted).sum(),
+                never_valid: group.iter().filter(|r| r.time_to_valid_s.is_none()).count(),
+            }
+        })
+        .collect()
+}
+
+/// 95th percentile (nearest rank) of sorted values; NaN when empty.
+pub fn percentile95(sorted: &[f64]) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let n = sorted.len();
+    sorted[((n as f64 * 0.95).ceil() as usize).clamp(1, n) - 1]
 }
 
 /// Run cases on `threads` threads; rows in case order.

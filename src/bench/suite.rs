@@ -60,6 +60,8 @@ pub struct Load {
 #[derive(Debug, Clone)]
 pub struct Case {
     pub scenario_name: String,
+    /// The scenario file's seed this case was drawn with.
+    pub seed: u64,
     pub load: String,
     pub scenario: Scenario,
 }
@@ -76,6 +78,7 @@ impl DriveSpec {
         for (li, load) in self.loads.iter().enumerate() {
             out.push(Case {
                 scenario_name: self.name.clone(),
+                seed: self.seed,
                 load: load.name.clone(),
                 scenario: self.build(li),
             });
