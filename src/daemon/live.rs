@@ -65,6 +65,12 @@ impl Sink for LiveSink<'_> {
             Event::LoadChanged { delta_deg, .. } => {
                 tracing::info!(delta_deg, "load change at standstill")
             }
+            Event::PitchShifted { delta_deg, .. } => {
+                tracing::warn!(
+                    delta_deg,
+                    "windows in a row disagree with the estimate; restarted from them"
+                )
+            }
             Event::WheelsStopped { .. } => tracing::info!("wheels stopped"),
             Event::LoadChangeSuspected { delta_deg, .. } => {
                 tracing::info!(

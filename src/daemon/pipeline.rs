@@ -691,7 +691,7 @@ impl Pipeline {
                     changed = true;
                 }
                 Event::WindowRejected { .. } => self.windows_rejected += 1,
-                Event::LoadChanged { .. } => changed = true,
+                Event::LoadChanged { .. } | Event::PitchShifted { .. } => changed = true,
                 Event::StandstillStarted { .. } => self.standstills += 1,
                 _ => {}
             }

@@ -280,6 +280,15 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
             "{t_s:12.3}  load change       {delta_deg:+.3} deg -> estimate {}",
             estimate.map_or("none".into(), |e| format!("{:+.3} deg", e.road_to_body_deg))
         ),
+        Event::PitchShifted {
+            t_s,
+            delta_deg,
+            estimate,
+        } => writeln!(
+            out,
+            "{t_s:12.3}  pitch shift       {delta_deg:+.3} deg (windows in a row) -> estimate {}",
+            estimate.map_or("none".into(), |e| format!("{:+.3} deg", e.road_to_body_deg))
+        ),
         Event::SampleDropped { t_s, reason } => {
             writeln!(out, "{t_s:12.3}  sample dropped    {reason:?}")
         }

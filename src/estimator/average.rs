@@ -70,6 +70,16 @@ impl Averager {
         }
     }
 
+    /// Restart from the newest `k` windows alone (they showed the value moved).
+    pub fn restart_from_newest(&mut self, k: usize) {
+        let keep = k.min(self.entries.len());
+        self.entries.drain(..self.entries.len() - keep);
+        for e in &mut self.entries {
+            e.1 = 1.0;
+        }
+        self.accepted = keep as u64;
+    }
+
     /// Current combined value; `None` before any window.
     pub fn combined(&mut self) -> Option<Combined> {
         if self.entries.is_empty() {
@@ -200,6 +210,22 @@ mod tests {
         assert!((c.value_deg - 1.5).abs() < 1e-12);
         assert_eq!(c.weight, 4.0);
         assert_eq!(a.accepted(), 0);
+    }
+
+    #[test]
+    fn restart_from_newest_keeps_only_them() {
+        let mut a = Averager::new(Averaging::Huber, 64, 0.2);
+        for _ in 0..10 {
+            a.push(0.2);
+        }
+        for x in [1.7, 1.8, 1.9] {
+            a.push(x);
+        }
+        a.restart_from_newest(3);
+        let c = a.combined().unwrap();
+        assert!((c.value_deg - 1.8).abs() < 1e-9, "{}", c.value_deg);
+        assert_eq!(c.weight, 3.0);
+        assert_eq!(a.accepted(), 3);
     }
 
     #[test]

@@ -70,6 +70,12 @@ pub struct EstimatorConfig {
     pub load_block_s: f64,
     /// After a load change, the shifted previous estimate counts as at most this many windows.
     pub load_prior_windows: f64,
+    /// `shift_windows` accepted windows in a row, each this far from the estimate on the
+    /// same side, restart the average from them: the pitch changed unseen (a load change
+    /// during a stop too short to confirm it, or while nothing watched). deg.
+    pub shift_deg: f64,
+    /// See `shift_deg`; 0 disables the check.
+    pub shift_windows: usize,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -105,6 +111,8 @@ impl Default for EstimatorConfig {
             load_change_deg: 0.2,
             load_block_s: 0.5,
             load_prior_windows: 4.0,
+            shift_deg: 0.4,
+            shift_windows: 3,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,
@@ -205,6 +213,14 @@ impl EstimatorConfig {
         pos("load_change_deg", self.load_change_deg)?;
         pos("load_block_s", self.load_block_s)?;
         nonneg("load_prior_windows", self.load_prior_windows)?;
+        pos("shift_deg", self.shift_deg)?;
+        if self.shift_windows == 1 || self.shift_windows > 64 {
+            return Err(ConfigError {
+                field: "shift_windows",
+                value: self.shift_windows as f64,
+                hint: "use 0 (off) or 2 to 64 windows",
+            });
+        }
         if self.average_capacity < 2 || self.average_capacity > 4096 {
             return Err(ConfigError {
                 field: "average_capacity",

@@ -111,6 +111,13 @@ pub enum Event {
         delta_deg: f64,
         estimate: Option<Estimate>,
     },
+    /// `shift_windows` windows in a row sat beyond `shift_deg` on one side of the
+    /// estimate: the pitch moved unseen, and the average restarted from them.
+    PitchShifted {
+        t_s: f64,
+        delta_deg: f64,
+        estimate: Option<Estimate>,
+    },
     /// An input sample was dropped (non-finite value or time going backwards).
     SampleDropped {
         t_s: f64,
@@ -210,6 +217,8 @@ pub struct Estimator {
     motion_unknown: bool,
     /// A load step seen when motion was unknown, waiting for a window: (delta rad, new pitch rad).
     pending_load: Option<(f64, f64)>,
+    /// Accepted windows in a row beyond `shift_deg` from the estimate: (side, count).
+    shift_run: (f64, usize),
     quiet_since: Option<f64>,
     /// Odometry since the last standstill ended, m.
     travelled_m: f64,
@@ -246,6 +255,7 @@ impl Estimator {
             wheels_stopped: false,
             motion_unknown: true,
             pending_load: None,
+            shift_run: (0.0, 0),
             quiet_since: None,
             travelled_m: 0.0,
             standstill: None,
@@ -981,6 +991,25 @@ impl Estimator {
         self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
     }
 
+    /// Count windows in a row that sit beyond `shift_deg` on the same side of the
+    /// estimate; true when `shift_windows` of them (this one included) agree.
+    fn track_shift(&mut self, window_deg: f64) -> bool {
+        let (k, thr) = (self.cfg.shift_windows, self.cfg.shift_deg);
+        let Some(e) = self.estimate.filter(|_| k >= 2) else {
+            self.shift_run = (0.0, 0);
+            return false;
+        };
+        let d = window_deg - e.road_to_body_deg;
+        self.shift_run = if d.abs() <= thr {
+            (0.0, 0)
+        } else if d.signum() == self.shift_run.0 {
+            (self.shift_run.0, self.shift_run.1 + 1)
+        } else {
+            (d.signum(), 1)
+        };
+        self.shift_run.1 >= k
+    }
+
     fn apply_load_change(
         &mut self,
         delta_rad: f64,
@@ -989,6 +1018,7 @@ impl Estimator {
         emit: &mut dyn FnMut(Event),
     ) {
         self.baseline_pitch_rad = Some(new_pitch_rad);
+        self.shift_run = (0.0, 0);
         self.avg
             .restart_shifted(delta_rad.to_degrees(), self.cfg.load_prior_windows);
         self.refresh_estimate();
@@ -1114,9 +1144,22 @@ impl Estimator {
                         self.apply_load_change(delta, new_pitch, t_s, emit);
                     }
                 }
+                let shifted = self.track_shift(r2b.to_degrees());
                 self.avg.push(r2b.to_degrees());
                 self.last_slope_rad = Some(g.slope_rad);
                 self.refresh_estimate();
+                if shifted {
+                    let before = self.estimate.map_or(0.0, |e| e.road_to_body_deg);
+                    self.avg.restart_from_newest(self.cfg.shift_windows);
+                    self.refresh_estimate();
+                    self.shift_run = (0.0, 0);
+                    let after = self.estimate.map_or(before, |e| e.road_to_body_deg);
+                    emit(Event::PitchShifted {
+                        t_s,
+                        delta_deg: after - before,
+                        estimate: self.estimate,
+                    });
+                }
                 let window = WindowReport {
                     t_s,
                     condition,
