@@ -55,7 +55,12 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         load_change_deg: 90.0,
         ..d()
     };
+    let no_shift = EstimatorConfig {
+        shift_windows: 0,
+        ..d()
+    };
     let paper = EstimatorConfig {
+        shift_windows: 0,
         averaging: Averaging::Mean,
         lever_arm_m: [0.0; 3],
         max_yaw_rate_dps: 1e3,
@@ -77,6 +82,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_turn, "no-turn-check")),
         Box::new(Leveld::new(no_ext, "no-extended-chord")),
         Box::new(Leveld::new(no_load, "no-load-step")),
+        Box::new(Leveld::new(no_shift, "no-shift-check")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }
