@@ -610,8 +610,6 @@ impl Estimator {
         let lowest = floor.saturating_sub(200);
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, g);
-        let lever = Vector3::from(self.cfg.lever_arm_m);
-        let last = self.hist.len() - 1;
         let mut q = q_ref;
         let mut res = [0.0f64; AVG];
         // Attitudes of the last AVG samples visited, the one at `edge` among them.
@@ -621,21 +619,8 @@ impl Estimator {
         let mut k = 0usize;
         loop {
             let x = self.hist.get(i);
-            // The IMU rides the rocking body at the lever arm: remove its tangential and
-            // centripetal acceleration (rate from the gyro, angular acceleration from
-            // central differences of it).
-            let w = x.gyro_rps() - bias;
-            let (a, b) = (
-                self.hist.get(i.saturating_sub(1)),
-                self.hist.get((i + 1).min(last)),
-            );
-            let span = b.t_s - a.t_s;
-            let alpha = if span > 0.0 {
-                (b.gyro_rps() - a.gyro_rps()) / span
-            } else {
-                Vector3::zeros()
-            };
-            let lever_acc = alpha.cross(&lever) + w.cross(&w.cross(&lever));
+            // The IMU rides the rocking body at the lever arm: remove that acceleration.
+            let lever_acc = self.lever_acc_at(i);
             res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
             qs[k % AVG] = q;
             k += 1;
