@@ -1,0 +1,141 @@
+//! From window geometry to the estimate: eq. 16 per window, the average (eq. 17 or
+//! Huber), shifts and load changes applied to it.
+
+use super::window::{self, Step, WindowSetup};
+use super::{Condition, Estimate, Estimator, Event, RejectReason, WindowReport};
+use nalgebra::{UnitQuaternion, Vector3};
+
+impl Estimator {
+    /// Count windows in a row that sit beyond `shift_deg` on the same side of the
+    /// estimate; true when `shift_windows` of them (this one included) agree.
+    pub(super) fn track_shift(&mut self, window_deg: f64) -> bool {
+        let (k, thr) = (self.cfg.shift_windows, self.cfg.shift_deg);
+        let Some(e) = self.estimate.filter(|_| k >= 2) else {
+            self.shift_run = (0.0, 0);
+            return false;
+        };
+        let d = window_deg - e.road_to_body_deg;
+        self.shift_run = if d.abs() <= thr {
+            (0.0, 0)
+        } else if d.signum() == self.shift_run.0 {
+            (self.shift_run.0, self.shift_run.1 + 1)
+        } else {
+            (d.signum(), 1)
+        };
+        self.shift_run.1 >= k
+    }
+
+    pub(super) fn apply_load_change(
+        &mut self,
+        delta_rad: f64,
+        new_pitch_rad: f64,
+        t_s: f64,
+        emit: &mut dyn FnMut(Event),
+    ) {
+        self.baseline_pitch_rad = Some(new_pitch_rad);
+        self.shift_run = (0.0, 0);
+        self.avg
+            .restart_shifted(delta_rad.to_degrees(), self.cfg.load_prior_windows);
+        self.refresh_estimate();
+        emit(Event::LoadChanged {
+            t_s,
+            delta_deg: delta_rad.to_degrees(),
+            estimate: self.estimate,
+        });
+    }
+
+    pub(super) fn finish_forward(&mut self, step: Step, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        let Step::Done(r) = step else { return };
+        let Some(ctx) = self.fwd_ctx.take() else {
+            return;
+        };
+        self.report_window(r, Condition::AccelAfterStop, ctx.imu_pitch_rad, t_now, emit);
+    }
+
+    pub(super) fn window_setup(&self, q0: UnitQuaternion<f64>, g: f64) -> WindowSetup {
+        let c = &self.cfg;
+        WindowSetup {
+            q0,
+            gyro_bias_rps: self.bias_rps.unwrap_or_else(Vector3::zeros),
+            gravity_mps2: g,
+            lever_arm_m: Vector3::from(c.lever_arm_m),
+            distance_m: c.window_distance_m,
+            check_extra_m: c.chord_check_extra_m,
+            max_time_s: c.max_window_time_s,
+            max_gap_s: c.max_imu_gap_s,
+            max_yaw_rate_rps: c.max_yaw_rate_dps.to_radians(),
+            max_lateral_acc_mps2: c.max_lateral_acc_mps2,
+            max_chord_deviation_m: c.max_chord_deviation_m,
+        }
+    }
+
+    pub(super) fn report_window(
+        &mut self,
+        r: Result<window::WindowGeometry, RejectReason>,
+        condition: Condition,
+        imu_pitch_rad: f64,
+        t_s: f64,
+        emit: &mut dyn FnMut(Event),
+    ) {
+        match r {
+            Ok(g) => {
+                let r2b = imu_pitch_rad - g.slope_rad;
+                if let Some((delta, new_pitch)) = self.pending_load.take() {
+                    // Keep the suspected load change only if this window agrees with it.
+                    let shifted_closer = self.estimate.is_none_or(|e| {
+                        let w = r2b.to_degrees();
+                        (w - (e.road_to_body_deg + delta.to_degrees())).abs()
+                            < (w - e.road_to_body_deg).abs()
+                    });
+                    if shifted_closer {
+                        self.apply_load_change(delta, new_pitch, t_s, emit);
+                    }
+                }
+                let shifted = self.track_shift(r2b.to_degrees());
+                self.avg.push(r2b.to_degrees());
+                self.last_slope_rad = Some(g.slope_rad);
+                self.refresh_estimate();
+                if shifted {
+                    let before = self.estimate.map_or(0.0, |e| e.road_to_body_deg);
+                    self.avg.restart_from_newest(self.cfg.shift_windows);
+                    self.refresh_estimate();
+                    self.shift_run = (0.0, 0);
+                    let after = self.estimate.map_or(before, |e| e.road_to_body_deg);
+                    emit(Event::PitchShifted {
+                        t_s,
+                        delta_deg: after - before,
+                        estimate: self.estimate,
+                    });
+                }
+                let window = WindowReport {
+                    t_s,
+                    condition,
+                    imu_pitch_deg: imu_pitch_rad.to_degrees(),
+                    road_slope_deg: g.slope_rad.to_degrees(),
+                    road_to_body_deg: r2b.to_degrees(),
+                    distance_m: g.distance_m,
+                    duration_s: g.duration_s,
+                    chord_deviation_m: g.chord_deviation_m,
+                };
+                if let Some(estimate) = self.estimate {
+                    emit(Event::WindowAccepted { window, estimate });
+                }
+            }
+            Err(reason) => emit(Event::WindowRejected {
+                t_s,
+                condition,
+                reason,
+            }),
+        }
+    }
+
+    pub(super) fn refresh_estimate(&mut self) {
+        let accepted = self.avg.accepted();
+        self.estimate = self.avg.combined().map(|c| Estimate {
+            road_to_body_deg: c.value_deg,
+            std_err_deg: c.std_err_deg,
+            windows: accepted,
+            weight: c.weight,
+        });
+    }
+}

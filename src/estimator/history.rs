@@ -1,0 +1,199 @@
+//! Walks over the buffered IMU history: where the car came to rest, the attitude
+//! carried by the gyro, and the motion of the IMU on the rocking body.
+
+use super::Estimator;
+use super::attitude;
+use nalgebra::{UnitQuaternion, Vector3};
+
+impl Estimator {
+    /// Walking back from the newest sample, the index of the earliest sample of the
+    /// trailing run whose 5-sample mean specific force matches `f_rest` (not before `floor`).
+    pub(super) fn rest_edge(&self, f_rest: &Vector3<f64>, floor: usize) -> usize {
+        const AVG: usize = 5;
+        let n = self.hist.len();
+        let tol = self.cfg.rest_acc_tol_mps2;
+        let mut edge = n - 1;
+        let mut i = n;
+        while i >= floor + AVG {
+            let mut m = Vector3::zeros();
+            for j in i - AVG..i {
+                m += self.hist.get(j).acc();
+            }
+            if ((m / AVG as f64) - f_rest).amax() > tol {
+                break;
+            }
+            edge = i - AVG;
+            i -= 1;
+        }
+        edge
+    }
+
+    /// Index of the first history sample at or after `t`.
+    pub(super) fn index_at(&self, t: f64) -> usize {
+        let (mut lo, mut hi) = (0, self.hist.len());
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if self.hist.get(mid).t_s < t {
+                lo = mid + 1
+            } else {
+                hi = mid
+            }
+        }
+        lo
+    }
+
+    /// Where the car came to rest, found walking back from the settled sample `from`
+    /// with the attitude carried by the gyro: a body rocking on its suspension at rest
+    /// only tilts gravity along x (its lever-arm acceleration is mostly vertical),
+    /// while braking shows fully in x. Returns the edge and the attitude there. The
+    /// search goes back at most 2 s before `floor`, the first quiet sample.
+    pub(super) fn rocking_rest_edge(
+        &self,
+        q_ref: UnitQuaternion<f64>,
+        from: usize,
+        floor: usize,
+        g: f64,
+    ) -> (usize, UnitQuaternion<f64>) {
+        const AVG: usize = 5;
+        let tol = self.cfg.rest_acc_tol_mps2;
+        let lowest = floor.saturating_sub(200);
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let up = Vector3::new(0.0, 0.0, g);
+        let mut q = q_ref;
+        let mut res = [0.0f64; AVG];
+        // Attitudes of the last AVG samples visited, the one at `edge` among them.
+        let mut qs = [q_ref; AVG];
+        let (mut edge, mut q_edge) = (from, q_ref);
+        let mut i = from;
+        let mut k = 0usize;
+        loop {
+            let x = self.hist.get(i);
+            // The IMU rides the rocking body at the lever arm: remove that acceleration.
+            let lever_acc = self.lever_acc_at(i);
+            res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
+            qs[k % AVG] = q;
+            k += 1;
+            if k >= AVG {
+                if (res.iter().sum::<f64>() / AVG as f64).abs() > tol {
+                    break;
+                }
+                // The newest sample of this window is certainly at rest; its attitude
+                // was visited AVG - 1 steps ago.
+                edge = i + AVG - 1;
+                q_edge = qs[k % AVG];
+            }
+            if i == 0 || i <= lowest {
+                break;
+            }
+            let (a, b) = (self.hist.get(i - 1), x);
+            let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
+            q = attitude::propagate(&q, &w, a.t_s - b.t_s);
+            i -= 1;
+        }
+        (edge.min(from), q_edge)
+    }
+
+    /// Velocity of the IMU at sample `i` (frame of its attitude `q_i`, m/s) while the
+    /// pitch centre is at rest but the body may still rock on its suspension. Each rest
+    /// sample j on the `later` side gives omega_j x lever arm, carried to `i` by the
+    /// integrated acceleration between them; the mean over `REST_VELOCITY_S` averages
+    /// out gyro noise (a single sample's noise times a 2 m lever arm costs about 0.1 deg
+    /// of slope). Smoothing the rate at `i` itself instead is biased right at the stop,
+    /// where the rocking starts with a kink. The first `SKIP` samples are left out in
+    /// case `i` is a step early.
+    pub(super) fn rest_velocity(
+        &self,
+        q_i: UnitQuaternion<f64>,
+        i: usize,
+        later: bool,
+        g: f64,
+    ) -> Vector3<f64> {
+        const REST_VELOCITY_S: f64 = 0.25;
+        const SKIP: usize = 2;
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let lever = Vector3::from(self.cfg.lever_arm_m);
+        let up = Vector3::new(0.0, 0.0, g);
+        let n = self.hist.len();
+        let t_i = self.hist.get(i).t_s;
+        let (mut q, mut dv) = (q_i, Vector3::zeros());
+        let (mut sum, mut count) = (Vector3::zeros(), 0usize);
+        let mut j = i;
+        loop {
+            let next = if later { j + 1 } else { j.wrapping_sub(1) };
+            if next >= n {
+                break;
+            }
+            let (a, b) = (self.hist.get(j), self.hist.get(next));
+            if (b.t_s - t_i).abs() > REST_VELOCITY_S {
+                break;
+            }
+            let dt = b.t_s - a.t_s;
+            let q_next = attitude::propagate(&q, &((a.gyro_rps() + b.gyro_rps()) * 0.5 - bias), dt);
+            // dv = v_next - v_i, in time order whichever way the walk goes.
+            dv += ((q * a.acc() - up) + (q_next * b.acc() - up)) * (0.5 * dt);
+            q = q_next;
+            j = next;
+            if j.abs_diff(i) > SKIP {
+                sum += q * (b.gyro_rps() - bias).cross(&lever) - dv;
+                count += 1;
+            }
+        }
+        if count == 0 {
+            return q_i * (self.hist.get(i).gyro_rps() - bias).cross(&lever);
+        }
+        sum / count as f64
+    }
+
+    /// Carry an attitude along the history from sample `from` to sample `to` with the
+    /// bias-corrected gyro (eq. 10-11), in either direction.
+    pub(super) fn carry(
+        &self,
+        mut q: UnitQuaternion<f64>,
+        from: usize,
+        to: usize,
+    ) -> UnitQuaternion<f64> {
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let step = |q: UnitQuaternion<f64>, i: usize, sign: f64| {
+            let (a, b) = (self.hist.get(i), self.hist.get(i + 1));
+            let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
+            attitude::propagate(&q, &w, sign * (b.t_s - a.t_s))
+        };
+        if from < to {
+            for i in from..to {
+                q = step(q, i, 1.0);
+            }
+        } else {
+            for i in (to..from).rev() {
+                q = step(q, i, -1.0);
+            }
+        }
+        q
+    }
+
+    /// Acceleration of the IMU at history sample `i` from the body still rocking about
+    /// the pitch centre (angular acceleration and rate from smoothed gyro readings), in
+    /// body axes, m/s^2. Mounted 2 m ahead of the pitch centre, the IMU sees a rocking
+    /// tail of 0.1 deg/s as 1 mm/s^2 in the standstill mean: 0.05 deg of slope over a
+    /// gentle 2 s window.
+    pub(super) fn lever_acc_at(&self, i: usize) -> Vector3<f64> {
+        const H: usize = 5;
+        let lever = Vector3::from(self.cfg.lever_arm_m);
+        if i < 2 * H || i + 2 * H >= self.hist.len() || lever == Vector3::zeros() {
+            return Vector3::zeros();
+        }
+        let rate = |c: usize| {
+            let mut w = Vector3::zeros();
+            for j in c - H..=c + H {
+                w += self.hist.get(j).gyro_rps();
+            }
+            w / (2 * H + 1) as f64
+        };
+        let span = self.hist.get(i + H).t_s - self.hist.get(i - H).t_s;
+        if span <= 0.0 {
+            return Vector3::zeros();
+        }
+        let alpha = (rate(i + H) - rate(i - H)) / span;
+        let w = rate(i) - self.bias_rps.unwrap_or_else(Vector3::zeros);
+        alpha.cross(&lever) + w.cross(&w.cross(&lever))
+    }
+}

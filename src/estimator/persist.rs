@@ -1,0 +1,124 @@
+//! Persistence of the estimator between runs, and the end-of-line seed.
+
+use super::Estimator;
+use super::average::Averager;
+use super::gravity::GravityFilter;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// What the daemon persists between runs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EstimatorState {
+    pub format: u32,
+    pub averager: Averager,
+    pub gyro_bias_dps: Option<[f64; 3]>,
+    /// Standstill IMU pitch of the current load, deg: the load baseline.
+    pub baseline_pitch_deg: Option<f64>,
+    pub last_road_slope_deg: Option<f64>,
+    /// Settled specific-force magnitude (bias along z included), m/s^2.
+    #[serde(default)]
+    pub gravity_mps2: Option<f64>,
+    /// Accelerometer bias along body x and y as seen in the standstill magnitude, m/s^2.
+    #[serde(default)]
+    pub accel_bias_xy_mps2: Option<[f64; 2]>,
+}
+
+impl EstimatorState {
+    pub const FORMAT: u32 = 1;
+}
+
+/// A restored state that cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StateError {
+    #[error(
+        "state format {found} is not supported (expected {expected}); the file was written by another version"
+    )]
+    Format { found: u32, expected: u32 },
+    #[error("state holds a non-finite or implausible value in `{0}`")]
+    Implausible(&'static str),
+}
+
+impl Estimator {
+    /// End-of-line calibration on a level floor: the IMU pitch is the road-to-body
+    /// pitch. Seeds the estimate with it, worth `weight` windows, and makes it the load
+    /// baseline.
+    pub fn seed_calibration(&mut self, road_to_body_deg: f64, weight: f64) {
+        self.avg.restore_prior(road_to_body_deg, weight, 0);
+        self.baseline_pitch_rad = Some(road_to_body_deg.to_radians());
+        self.refresh_estimate();
+    }
+
+    /// Snapshot for persistence.
+    pub fn state(&self) -> EstimatorState {
+        EstimatorState {
+            format: EstimatorState::FORMAT,
+            averager: self.avg.clone(),
+            gyro_bias_dps: self.gyro_bias_dps(),
+            baseline_pitch_deg: self.baseline_pitch_rad.map(f64::to_degrees),
+            last_road_slope_deg: self.last_road_slope_deg(),
+            gravity_mps2: self.gravity.map(|g| g.x.x),
+            accel_bias_xy_mps2: self.gravity.map(|g| [g.x.y, g.x.z]),
+        }
+    }
+
+    /// Restore a persisted snapshot. The averaging mode and capacity of the running
+    /// configuration win over the stored ones.
+    pub fn restore(&mut self, st: &EstimatorState) -> Result<(), StateError> {
+        if st.format != EstimatorState::FORMAT {
+            return Err(StateError::Format {
+                found: st.format,
+                expected: EstimatorState::FORMAT,
+            });
+        }
+        let ok_angle = |v: Option<f64>| v.is_none_or(|x| x.is_finite() && x.abs() < 45.0);
+        if !ok_angle(st.baseline_pitch_deg) {
+            return Err(StateError::Implausible("baseline_pitch_deg"));
+        }
+        if !ok_angle(st.last_road_slope_deg) {
+            return Err(StateError::Implausible("last_road_slope_deg"));
+        }
+        if let Some(b) = st.gyro_bias_dps {
+            if b.iter().any(|x| !x.is_finite() || x.abs() > 50.0) {
+                return Err(StateError::Implausible("gyro_bias_dps"));
+            }
+        }
+        let mut avg = Averager::new(
+            self.cfg.averaging,
+            self.cfg.average_capacity,
+            self.cfg.window_sigma_prior_deg,
+        );
+        let mut stored = st.averager.clone();
+        if let Some(c) = stored.combined() {
+            if !(c.value_deg.is_finite() && c.value_deg.abs() < 45.0 && c.weight.is_finite()) {
+                return Err(StateError::Implausible("averager"));
+            }
+            // Carry the stored evidence as a prior worth its full weight.
+            avg.restore_prior(c.value_deg, c.weight, stored.accepted());
+        }
+        self.avg = avg;
+        self.bias_rps = st
+            .gyro_bias_dps
+            .map(|b| Vector3::from(b).map(f64::to_radians));
+        self.baseline_pitch_rad = st.baseline_pitch_deg.map(f64::to_radians);
+        if let Some(g) = st.gravity_mps2 {
+            if !(g.is_finite() && (5.0..15.0).contains(&g)) {
+                return Err(StateError::Implausible("gravity_mps2"));
+            }
+        }
+        if let Some(b) = st.accel_bias_xy_mps2 {
+            if b.iter().any(|x| !x.is_finite() || x.abs() > 2.0) {
+                return Err(StateError::Implausible("accel_bias_xy_mps2"));
+            }
+        }
+        self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
+        self.motion_unknown = true;
+        // A restored magnitude is as uncertain as a few seconds of standstill; new stops
+        // refine it.
+        self.gravity = st.gravity_mps2.map(|g| {
+            let bias = st.accel_bias_xy_mps2.unwrap_or([0.0; 2]);
+            GravityFilter::new(g, 1e-5, bias, 0.01)
+        });
+        self.refresh_estimate();
+        Ok(())
+    }
+}

@@ -1,0 +1,334 @@
+//! Standstill: its start, the settled gravity reference, load changes seen while
+//! stopped, and the windows on either side of it (deceleration before, acceleration after).
+
+use super::attitude::{attitude_from_gravity, pitch_of};
+use super::gravity::pitch_from;
+use super::window::{RejectReason, Step};
+use super::{Condition, Estimator, Event, ImuSample};
+use nalgebra::Vector3;
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Standstill {
+    /// Where the car came to rest (start of the deceleration walk).
+    pub(super) t_rest_s: f64,
+    /// Specific-force sums of the settled samples of the current load segment.
+    pub(super) seg_sum: Vector3<f64>,
+    pub(super) seg_n: u64,
+    pub(super) seg_first_s: f64,
+    pub(super) seg_last_s: f64,
+    pub(super) block_sum: Vector3<f64>,
+    pub(super) block_n: u64,
+    pub(super) block_t0_s: f64,
+    /// A block that differed from the segment, waiting for a second one to confirm.
+    pub(super) pending: Option<(Vector3<f64>, u64)>,
+    /// The car drove since the previous standstill.
+    pub(super) moved: bool,
+    /// Nothing watched the wheels between the load baseline and this standstill.
+    pub(super) motion_unknown: bool,
+    /// The settled reference exists and the baseline and deceleration window were handled.
+    pub(super) settled_done: bool,
+}
+
+impl Standstill {
+    pub(super) fn mean(&self) -> Vector3<f64> {
+        self.seg_sum / self.seg_n.max(1) as f64
+    }
+    pub(super) fn settled_s(&self) -> f64 {
+        if self.seg_n == 0 {
+            0.0
+        } else {
+            self.seg_last_s - self.seg_first_s
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ForwardCtx {
+    pub(super) imu_pitch_rad: f64,
+}
+
+impl Estimator {
+    pub(super) fn begin_standstill(&mut self, q0_t: f64, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        let n = self.hist.len();
+        let first_quiet = self.index_at(q0_t).min(n - 1);
+        // Reference at rest: the most recent quarter second, surely stopped by now.
+        let mut f_rest = Vector3::zeros();
+        let mut w_mean = Vector3::zeros();
+        let mut k = 0;
+        for i in (first_quiet..n).rev() {
+            let x = self.hist.get(i);
+            if t_now - x.t_s > 0.25 && k >= 5 {
+                break;
+            }
+            f_rest += x.acc();
+            w_mean += x.gyro_rps();
+            k += 1;
+        }
+        f_rest /= k.max(1) as f64;
+        if self.bias_rps.is_none() {
+            // First standstill ever: start eq. 7 from the mean rate.
+            self.bias_rps = Some(w_mean / k.max(1) as f64);
+        }
+        // The car came to rest where the specific force settled; constant braking
+        // has no variance, so the stillness test alone would start too early.
+        let rest = self
+            .rest_edge(&f_rest, 0)
+            .max(first_quiet.saturating_sub(100))
+            .min(n - 1);
+        let moved = self.travelled_m > 0.5;
+        // From here on the wheels are watched; before, motion may have gone unseen.
+        let motion_unknown = self.motion_unknown && !moved;
+        self.motion_unknown = false;
+        self.settle_queue.clear();
+        self.standstill = Some(Standstill {
+            t_rest_s: self.hist.get(rest).t_s,
+            seg_sum: Vector3::zeros(),
+            seg_n: 0,
+            seg_first_s: t_now,
+            seg_last_s: t_now,
+            block_sum: Vector3::zeros(),
+            block_n: 0,
+            block_t0_s: t_now,
+            pending: None,
+            moved,
+            motion_unknown,
+            settled_done: false,
+        });
+        let pitch = pitch_from(&f_rest).unwrap_or(0.0);
+        emit(Event::StandstillStarted {
+            t_s: t_now,
+            imu_pitch_deg: pitch.to_degrees(),
+        });
+        // The drive stopped before a forward window covered its distance.
+        if self.fwd.is_active() {
+            let step = self.fwd.exhausted();
+            self.finish_forward(step, t_now, emit);
+        }
+    }
+
+    pub(super) fn update_standstill(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
+        if !self.bias_window_ok {
+            return;
+        }
+        // Samples join the reference only once a further stillness window has passed:
+        // the last ones before a drive-off are already moving.
+        if self.settle_queue.len() == self.settle_queue.capacity() {
+            self.settle_queue.pop_front();
+        }
+        self.settle_queue.push_back(*s);
+        let lag = 2.0 * self.cfg.still_window_s;
+        while let Some(x) = self.settle_queue.front().copied() {
+            if s.t_s - x.t_s < lag {
+                break;
+            }
+            self.settle_queue.pop_front();
+            self.commit_settled(&x, emit);
+        }
+    }
+
+    pub(super) fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
+        self.update_bias(s);
+        // The gravity reference is the specific force of the pitch centre: what the IMU
+        // would read without the rocking tail.
+        let f = s.acc() - self.lever_acc_at(self.index_at(s.t_s));
+        self.update_gravity(s.t_s, &f);
+        let block_s = self.cfg.load_block_s;
+        let settle_s = self.cfg.settle_time_s;
+        let deadline_s = self.cfg.history_s - self.cfg.max_window_time_s - 1.0;
+        let thr = self.cfg.load_change_deg.to_radians();
+        let Some(st) = self.standstill.as_mut() else {
+            return;
+        };
+        let s = *s;
+        if st.seg_n == 0 {
+            st.seg_first_s = s.t_s;
+            st.block_t0_s = s.t_s;
+        }
+        if !st.settled_done {
+            st.seg_sum += f;
+            st.seg_n += 1;
+            st.seg_last_s = s.t_s;
+            // Wait for a long gravity average, but not so long that the history loses
+            // the samples before the stop.
+            if st.settled_s() >= settle_s || s.t_s - st.t_rest_s >= deadline_s {
+                self.on_settled(s.t_s, emit);
+            }
+            return;
+        }
+        st.seg_last_s = s.t_s;
+        st.block_sum += f;
+        st.block_n += 1;
+        if s.t_s - st.block_t0_s < block_s {
+            return;
+        }
+        let block_mean = st.block_sum / st.block_n as f64;
+        let (block, block_n) = (st.block_sum, st.block_n);
+        st.block_sum = Vector3::zeros();
+        st.block_n = 0;
+        st.block_t0_s = s.t_s;
+        let (Some(bp), Some(sp)) = (pitch_from(&block_mean), pitch_from(&st.mean())) else {
+            return;
+        };
+        if (bp - sp).abs() <= thr {
+            st.seg_sum += block;
+            st.seg_n += block_n;
+            st.pending = None;
+            return;
+        }
+        match st.pending.take() {
+            Some((psum, pn))
+                if pitch_from(&(psum / pn as f64))
+                    .is_some_and(|pp| (pp - bp).abs() <= thr / 2.0) =>
+            {
+                // Two blocks agree on a new pitch: the load changed.
+                st.seg_sum = psum + block;
+                st.seg_n = pn + block_n;
+                let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
+                let delta = new_pitch - sp;
+                self.apply_load_change(delta, new_pitch, s.t_s, emit);
+            }
+            _ => st.pending = Some((block, block_n)),
+        }
+    }
+
+    /// The standstill has a settled gravity reference: check the load baseline and
+    /// evaluate the deceleration window.
+    pub(super) fn on_settled(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        let Some(st) = self.standstill.as_mut() else {
+            return;
+        };
+        st.settled_done = true;
+        let st = *st;
+        let Some(q_ref) = attitude_from_gravity(&st.mean()) else {
+            return;
+        };
+        let pitch = pitch_of(&q_ref);
+        // Stopped or parked without driving since the last baseline: a pitch step is a load change.
+        match self.baseline_pitch_rad {
+            Some(base) if !st.moved => {
+                let delta = pitch - base;
+                if delta.abs().to_degrees() > self.cfg.load_change_deg {
+                    if st.motion_unknown {
+                        // After a restart or a wheel-speed outage the car may have moved
+                        // to another grade: let the next accepted window decide.
+                        self.pending_load = Some((delta, pitch));
+                        emit(Event::LoadChangeSuspected {
+                            t_s: t_now,
+                            delta_deg: delta.to_degrees(),
+                        });
+                    } else {
+                        self.apply_load_change(delta, pitch, t_now, emit);
+                    }
+                }
+            }
+            _ => self.baseline_pitch_rad = Some(pitch),
+        }
+        // The baseline now stands here: odometry counts from this stop. (A standstill
+        // that never settles, such as one declared while still rolling below the
+        // wheel sensors' dead zone, must not reset it.)
+        self.travelled_m = 0.0;
+        if !st.moved {
+            return;
+        }
+        // Deceleration condition: carry the settled attitude back to the rest edge, then
+        // walk the history backwards from there.
+        if self.hist.get(0).t_s > st.t_rest_s {
+            let r = Err(RejectReason::TooShort { distance_m: 0.0 });
+            self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
+            return;
+        }
+        let g = self.gravity_mps2(&st.mean());
+        let (rest, q0) = self.rocking_rest_edge(
+            q_ref,
+            self.index_at(st.seg_first_s),
+            self.index_at(st.t_rest_s),
+            g,
+        );
+        let setup = self.window_setup(q0, g);
+        let v0 = self.rest_velocity(q0, rest, true, g);
+        self.bwd.start(setup, v0);
+        let mut result = None;
+        for i in (0..=rest).rev() {
+            if let Step::Done(r) = self.bwd.push(&self.hist.get(i)) {
+                result = Some(r);
+                break;
+            }
+        }
+        let r = match result {
+            Some(r) => r,
+            None => match self.bwd.exhausted() {
+                Step::Done(r) => r,
+                Step::Continue => return,
+            },
+        };
+        self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
+    }
+
+    pub(super) fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        let Some(st) = self.standstill else { return };
+        if !st.settled_done && st.seg_n >= 5 {
+            // A short stop: use what settled.
+            self.on_settled(t_now, emit);
+        }
+        self.standstill = None;
+        emit(Event::StandstillEnded {
+            t_s: t_now,
+            duration_s: t_now - st.t_rest_s,
+        });
+        let q_ref = if st.seg_n >= 5 {
+            attitude_from_gravity(&st.mean())
+        } else {
+            None
+        };
+        let Some(q_ref) = q_ref else {
+            if st.moved {
+                let r = Err(RejectReason::NotStill);
+                self.report_window(r, Condition::DecelBeforeStop, 0.0, t_now, emit);
+            }
+            let r = Err(RejectReason::NotStill);
+            self.report_window(r, Condition::AccelAfterStop, 0.0, t_now, emit);
+            return;
+        };
+        // Start the walk at the last sample that still matched the standstill: from
+        // there the car moves. The current sample is pushed by the caller.
+        let n = self.hist.len();
+        let floor = self.index_at(st.t_rest_s);
+        let g_mean = st.mean();
+        let mut first = n - 1;
+        let mut i = n - 1;
+        while i >= floor + 5 {
+            let mut m = Vector3::zeros();
+            for j in i - 4..=i {
+                m += self.hist.get(j).acc();
+            }
+            if ((m / 5.0) - g_mean).amax() <= self.cfg.rest_acc_tol_mps2 {
+                first = i;
+                break;
+            }
+            i -= 1;
+        }
+        // Two samples of margin: a sample straddling the drive-off can still match.
+        let first = first.saturating_sub(2).max(floor);
+        let last_settled = self.index_at(st.seg_last_s).min(n - 1);
+        let q0 = self.carry(q_ref, last_settled, first);
+        let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
+        // A stop that settled ends with the body at rest: its rate is zero, not noise.
+        let settled_at_start = st.seg_n >= 5 && self.hist.get(first).t_s - st.seg_last_s < 1.0;
+        let v0 = if settled_at_start {
+            Vector3::zeros()
+        } else {
+            self.rest_velocity(q0, first, false, setup.gravity_mps2)
+        };
+        self.fwd.start(setup, v0);
+        self.fwd_ctx = Some(ForwardCtx {
+            imu_pitch_rad: pitch_of(&q_ref),
+        });
+        for i in first..n - 1 {
+            let step = self.fwd.push(&self.hist.get(i));
+            if let Step::Done(_) = step {
+                self.finish_forward(step, t_now, emit);
+                return;
+            }
+        }
+    }
+}
