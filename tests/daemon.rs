@@ -177,6 +177,8 @@ fn level_stand(seconds: f64, pitch: f64) -> Scenario {
         load_changes: vec![],
         vehicle: Vehicle::default(),
         sensors: Sensors::default(),
+        shocks: Vec::new(),
+        imu_gaps: Vec::new(),
         seed: 4,
     }
 }

@@ -39,6 +39,8 @@ fn base(seed: u64) -> Scenario {
         load_changes: vec![],
         vehicle: Vehicle::rigid(),
         sensors: Sensors::default(),
+        shocks: Vec::new(),
+        imu_gaps: Vec::new(),
         seed,
     }
 }
@@ -112,6 +114,8 @@ fn load_step_at_standstill_is_followed_before_and_after_moving_off() {
         load_changes: vec![(t_step, 1.2, 1.5)],
         vehicle: Vehicle::default(),
         sensors: Sensors::default(),
+        shocks: Vec::new(),
+        imu_gaps: Vec::new(),
         seed: 9,
     };
     let (ev, est, drive) = run(&sc, EstimatorConfig::default());
@@ -168,6 +172,8 @@ fn parked_drive(grade_deg: f64, load_pitch_deg: f64, seed: u64) -> Scenario {
         load_changes: vec![],
         vehicle: Vehicle::default(),
         sensors: Sensors::default(),
+        shocks: Vec::new(),
+        imu_gaps: Vec::new(),
         seed,
     }
 }

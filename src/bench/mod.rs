@@ -3,4 +3,5 @@
 pub mod accuracy;
 pub mod baselines;
 pub mod plots;
+pub mod realistic;
 pub mod suite;

@@ -47,6 +47,10 @@ pub struct DriveSpec {
     pub stop_on_grade_change_share: f64,
     #[serde(default)]
     pub sensors: Option<Sensors>,
+    /// The effects of a realistic drive (see `bench::realistic`); present in the
+    /// `scenarios/realistic/` family.
+    #[serde(default)]
+    pub realistic: Option<super::realistic::RealisticSpec>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -64,6 +68,8 @@ pub struct Case {
     pub seed: u64,
     pub load: String,
     pub scenario: Scenario,
+    /// Stops of a realistic drive, for the per-stop checks.
+    pub plan: Option<super::realistic::StopPlan>,
 }
 
 impl DriveSpec {
@@ -76,11 +82,19 @@ impl DriveSpec {
     pub fn cases(&self) -> Vec<Case> {
         let mut out = Vec::new();
         for (li, load) in self.loads.iter().enumerate() {
+            let (scenario, plan) = match &self.realistic {
+                Some(r) => {
+                    let (sc, plan) = super::realistic::build(self, r, li);
+                    (sc, Some(plan))
+                }
+                None => (self.build(li), None),
+            };
             out.push(Case {
                 scenario_name: self.name.clone(),
                 seed: self.seed,
                 load: load.name.clone(),
-                scenario: self.build(li),
+                scenario,
+                plan,
             });
         }
         out
@@ -154,23 +168,7 @@ impl DriveSpec {
                 road.grade_deg.sort_by(|a, b| a.0.total_cmp(&b.0));
             }
         }
-        // Speed bumps: a 7 cm hump over 3 m, 3 m past the stop.
-        for &s in stops.iter() {
-            if g.uniform() < self.bump_share {
-                let base = road.grade(s + 3.0).0.to_degrees();
-                let hump = (0.07f64 / 1.5).atan().to_degrees();
-                road.grade_deg.retain(|k| k.0 < s + 2.5 || k.0 > s + 6.5);
-                road.grade_deg.extend([
-                    (s + 2.9, base),
-                    (s + 3.0, base + hump),
-                    (s + 4.4, base + hump),
-                    (s + 4.6, base - hump),
-                    (s + 5.9, base - hump),
-                    (s + 6.0, base),
-                ]);
-                road.grade_deg.sort_by(|a, b| a.0.total_cmp(&b.0));
-            }
-        }
+        add_bumps(&mut road, &stops, self.bump_share, &mut g);
         // Turns after some stops: 90 degrees on a 15 m radius.
         for &s in stops.iter() {
             if g.uniform() < self.turn_share {
@@ -216,7 +214,29 @@ impl DriveSpec {
                 gyro_bias_dps: [0.2, -0.3, 0.1],
                 ..Sensors::default()
             }),
+            shocks: Vec::new(),
+            imu_gaps: Vec::new(),
             seed: self.seed.wrapping_mul(31).wrapping_add(load_idx as u64),
+        }
+    }
+}
+
+/// Speed bumps: a 7 cm hump over 3 m, 3 m past each of a `share` of the stops.
+pub(crate) fn add_bumps(road: &mut crate::sim::Road, stops: &[f64], share: f64, g: &mut Gauss) {
+    for &s in stops.iter() {
+        if g.uniform() < share {
+            let base = road.grade(s + 3.0).0.to_degrees();
+            let hump = (0.07f64 / 1.5).atan().to_degrees();
+            road.grade_deg.retain(|k| k.0 < s + 2.5 || k.0 > s + 6.5);
+            road.grade_deg.extend([
+                (s + 2.9, base),
+                (s + 3.0, base + hump),
+                (s + 4.4, base + hump),
+                (s + 4.6, base - hump),
+                (s + 5.9, base - hump),
+                (s + 6.0, base),
+            ]);
+            road.grade_deg.sort_by(|a, b| a.0.total_cmp(&b.0));
         }
     }
 }

@@ -90,6 +90,34 @@ struct Kin {
     kappa: f64,
 }
 
+/// Commanded longitudinal acceleration at time `t` with the driver's ramps: each change
+/// of the profile is spread linearly over `ramp_s` centred on it (the speed reached
+/// after the ramp is unchanged), except where braking ends at rest, which stays a step.
+fn ramped_accel(segs: &[super::scenario::SpeedSegment], ramp_s: f64, t: f64) -> f64 {
+    let mut t0 = 0.0;
+    let mut prev = 0.0;
+    for (i, sg) in segs.iter().enumerate() {
+        let t1 = t0 + sg.duration_s;
+        let next = segs.get(i + 1).map_or(0.0, |n| n.accel_mps2);
+        let half = 0.5 * ramp_s;
+        let ramps = |a: f64, b: f64| ramp_s > 0.0 && !(a < 0.0 && b == 0.0) && a != b;
+        if t < t1 || i + 1 == segs.len() {
+            if ramps(prev, sg.accel_mps2) && t < t0 + half && i > 0 {
+                let x = (t - (t0 - half)) / ramp_s;
+                return prev + (sg.accel_mps2 - prev) * x;
+            }
+            if ramps(sg.accel_mps2, next) && t > t1 - half && i + 1 < segs.len() {
+                let x = (t - (t1 - half)) / ramp_s;
+                return sg.accel_mps2 + (next - sg.accel_mps2) * x;
+            }
+            return if t < t1 { sg.accel_mps2 } else { 0.0 };
+        }
+        prev = sg.accel_mps2;
+        t0 = t1;
+    }
+    0.0
+}
+
 /// Simulate a scenario. Deterministic for a given scenario (its seed included).
 pub fn simulate(sc: &Scenario) -> Drive {
     let sen = &sc.sensors;
@@ -118,6 +146,15 @@ pub fn simulate(sc: &Scenario) -> Drive {
         0.0
     };
     let mut acc_bias = Vector3::from(sen.acc_bias_mps2);
+    let [mr, mp, my] = veh.imu_mount_deg.map(f64::to_radians);
+    // Body-to-IMU: the IMU frame is the body frame turned by yaw, then pitch, then roll.
+    let body_to_imu = (UnitQuaternion::from_axis_angle(&Vector3::z_axis(), my)
+        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -mp)
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), mr))
+    .inverse();
+    // The longitudinal vibration gets its own phase without a draw of its own (the noise
+    // sequence of existing scenarios stays as it was).
+    let long_phase = rough_phase + 1.7;
     let mut gyro_bias = Vector3::from(sen.gyro_bias_dps);
 
     let mut imu = Vec::with_capacity(n_steps / sub + 1);
@@ -134,7 +171,9 @@ pub fn simulate(sc: &Scenario) -> Drive {
             seg_t0 += segs[seg].duration_s;
             seg += 1;
         }
-        let a_cmd = if seg < segs.len() {
+        let a_cmd = if veh.accel_ramp_s > 0.0 {
+            ramped_accel(segs, veh.accel_ramp_s, t)
+        } else if seg < segs.len() {
             segs[seg].accel_mps2
         } else {
             0.0
@@ -149,7 +188,8 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let gam = (pf.1 - pr.1).atan2(pf.0 - pr.0);
         let (kappa, psi) = sc.road.heading(s);
         let load = sc.load_pitch_deg_at(t).to_radians();
-        let pitch = gam + load + beta;
+        let shock: f64 = sc.shocks.iter().map(|x| x.pitch_rad(t)).sum();
+        let pitch = gam + load + beta + shock;
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
             * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch);
         // Acceleration of the midpoint in the vertical plane of the road: tangential plus
@@ -173,7 +213,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
                 s_m: s,
                 v_mps: v,
                 grade_deg: sc.road.grade(s).0.to_degrees(),
-                load_pitch_deg: load.to_degrees(),
+                load_pitch_deg: load.to_degrees() + veh.imu_mount_deg[1],
                 suspension_deg: beta.to_degrees(),
             },
             kappa,
@@ -218,6 +258,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
                     gyro_bias[i] += sen.gyro_bias_walk_dps_rts * imu_dt.sqrt() * g.normal();
                 }
             }
+            let (f_b, w_b) = (body_to_imu * f_b, body_to_imu * w_b);
             let mut f = f_b + acc_bias;
             if veh.rough_road_mps2 > 0.0 {
                 // Zero-mean vertical vibration growing with speed; its displacement is a
@@ -230,6 +271,14 @@ pub fn simulate(sc: &Scenario) -> Drive {
                     .sum::<f64>()
                     / 3f64.sqrt();
                 f[2] += amp * vib;
+                if veh.rough_road_long_share > 0.0 {
+                    let vib_x: f64 = [(9.4, 0.4), (12.6, 2.1)]
+                        .iter()
+                        .map(|(hz, ph)| (std::f64::consts::TAU * hz * t + ph + long_phase).sin())
+                        .sum::<f64>()
+                        / 2f64.sqrt();
+                    f[0] += amp * veh.rough_road_long_share * vib_x;
+                }
             }
             let mut w = w_b.map(f64::to_degrees) + gyro_bias;
             for i in 0..3 {
@@ -237,8 +286,19 @@ pub fn simulate(sc: &Scenario) -> Drive {
                 w[i] += gyro_sigma * g.normal();
             }
             let dropped = sen.imu_drop_prob > 0.0 && g.uniform() < sen.imu_drop_prob;
-            if !dropped {
-                imu.push(ImuSample::new(m.truth.t_s, f.into(), w.into()));
+            let t_true = m.truth.t_s;
+            let in_gap = sc
+                .imu_gaps
+                .iter()
+                .any(|&(t0, d)| t_true >= t0 && t_true < t0 + d);
+            let [j0, j1] = sen.imu_jitter_ms;
+            let t_rx = if j1 > 0.0 {
+                t_true + 1e-3 * (j0 + (j1 - j0) * g.uniform())
+            } else {
+                t_true
+            };
+            if !dropped && !in_gap {
+                imu.push(ImuSample::new(t_rx, f.into(), w.into()));
             }
             if idx % wheel_every == 0 {
                 wheels.push(wheel_speeds(
@@ -255,6 +315,12 @@ pub fn simulate(sc: &Scenario) -> Drive {
         // (a brake segment ends exactly at rest; rounding it to the grid would leave
         // the car creeping at up to a*h through the following stop).
         let a_step = match (seg < segs.len(), segs.get(seg + 1)) {
+            (true, Some(next))
+                if veh.accel_ramp_s > 0.0
+                    && !(segs[seg].accel_mps2 < 0.0 && next.accel_mps2 == 0.0) =>
+            {
+                0.5 * (a_long + ramped_accel(segs, veh.accel_ramp_s, t + h))
+            }
             (true, Some(next)) if t + h > seg_t0 + segs[seg].duration_s => {
                 let before = seg_t0 + segs[seg].duration_s - t;
                 (a_long * before + next.accel_mps2 * (h - before)) / h

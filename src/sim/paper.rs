@@ -130,6 +130,8 @@ pub fn movement(st: &Setting, seed: u64) -> Scenario {
             acc_bias_mps2: [st.bias_mps2; 3],
             ..Sensors::ideal()
         },
+        shocks: Vec::new(),
+        imu_gaps: Vec::new(),
         seed,
     }
 }

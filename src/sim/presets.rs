@@ -48,6 +48,7 @@ pub fn road_around_stops(stops: &[f64], grades_pct: &[f64]) -> Road {
     Road {
         grade_deg: knots,
         curves: Vec::new(),
+        curve_ramp_m: 0.0,
     }
 }
 
@@ -79,6 +80,8 @@ pub fn preset(name: &str, seed: u64) -> Option<Scenario> {
                 load_changes: Vec::new(),
                 vehicle: Vehicle::default(),
                 sensors,
+                shocks: Vec::new(),
+                imu_gaps: Vec::new(),
                 seed,
             })
         }
@@ -101,6 +104,8 @@ pub fn preset(name: &str, seed: u64) -> Option<Scenario> {
                 load_changes: vec![(t_fourth_stop, 1.4, 3.0)],
                 vehicle: Vehicle::default(),
                 sensors,
+                shocks: Vec::new(),
+                imu_gaps: Vec::new(),
                 seed,
             })
         }
@@ -115,6 +120,8 @@ pub fn preset(name: &str, seed: u64) -> Option<Scenario> {
                 load_changes: Vec::new(),
                 vehicle: Vehicle::default(),
                 sensors,
+                shocks: Vec::new(),
+                imu_gaps: Vec::new(),
                 seed,
             })
         }

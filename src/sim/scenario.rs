@@ -50,6 +50,10 @@ pub struct Road {
     pub grade_deg: Vec<(f64, f64)>,
     /// (from m, to m, curvature 1/m, positive turning left).
     pub curves: Vec<(f64, f64, f64)>,
+    /// Curvature ramps in (and out) linearly over this distance at each end of a curve,
+    /// as a driver turns the wheel in; 0 is a step, m.
+    #[serde(default)]
+    pub curve_ramp_m: f64,
 }
 
 impl Road {
@@ -57,6 +61,7 @@ impl Road {
         Self {
             grade_deg: vec![(0.0, grade_deg)],
             curves: Vec::new(),
+            curve_ramp_m: 0.0,
         }
     }
 
@@ -115,12 +120,40 @@ impl Road {
         let mut psi = 0.0;
         let mut kappa = 0.0;
         for &(a, b, k) in &self.curves {
+            // Trapezoidal curvature: ramps of length r at both ends (r = 0: a step).
+            let r = self.curve_ramp_m.clamp(0.0, 0.5 * (b - a).max(0.0));
+            let kap = |x: f64| {
+                if x <= a || x >= b {
+                    0.0
+                } else if r > 0.0 && x < a + r {
+                    k * (x - a) / r
+                } else if r > 0.0 && x > b - r {
+                    k * (b - x) / r
+                } else {
+                    k
+                }
+            };
+            // Heading gained from a to x: integral of the trapezoid.
+            let gained = |x: f64| {
+                let x = x.clamp(a, b);
+                if r <= 0.0 {
+                    return k * (x - a);
+                }
+                let up = (x - a).min(r);
+                let mut p = k * up * up / (2.0 * r);
+                if x > a + r {
+                    p += k * (x.min(b - r) - (a + r)).max(0.0);
+                }
+                if x > b - r {
+                    let d = b - x;
+                    p += k * (r * r - d * d) / (2.0 * r);
+                }
+                p
+            };
             if s > a {
-                psi += k * (s.min(b) - a);
+                psi += gained(s);
             }
-            if s >= a && s < b {
-                kappa = k;
-            }
+            kappa += kap(s);
         }
         (kappa, psi)
     }
@@ -158,6 +191,15 @@ pub struct Vehicle {
     pub wheelbase_m: f64,
     /// Rough-road vertical vibration at the IMU at 50 km/h (zero-mean 8-14 Hz), m/s^2.
     pub rough_road_mps2: f64,
+    /// Longitudinal structural vibration at the IMU as a share of the vertical one.
+    pub rough_road_long_share: f64,
+    /// IMU mounting misalignment to the body: roll, pitch, yaw, deg. The IMU pitch
+    /// adds to what leveld measures (road-to-IMU); calibration takes it out.
+    pub imu_mount_deg: [f64; 3],
+    /// Drivers ramp the acceleration in over this time at each change of the speed
+    /// profile (a jerk limit), except at the moment the car comes to rest, where the
+    /// brake's deceleration ends at once, s. 0 gives steps everywhere.
+    pub accel_ramp_s: f64,
 }
 
 impl Default for Vehicle {
@@ -170,6 +212,9 @@ impl Default for Vehicle {
             track_m: 1.6,
             wheelbase_m: 2.7,
             rough_road_mps2: 0.0,
+            rough_road_long_share: 0.0,
+            imu_mount_deg: [0.0; 3],
+            accel_ramp_s: 0.0,
         }
     }
 }
@@ -208,6 +253,8 @@ pub struct Sensors {
     pub wheel_zero_below_kmh: f64,
     /// Probability that an IMU sample is lost.
     pub imu_drop_prob: f64,
+    /// CAN arrival jitter of the IMU sample time, uniform in [min, max], ms.
+    pub imu_jitter_ms: [f64; 2],
 }
 
 impl Default for Sensors {
@@ -224,6 +271,7 @@ impl Default for Sensors {
             wheel_quantum_kmh: 0.03125,
             wheel_zero_below_kmh: 1.5,
             imu_drop_prob: 0.0,
+            imu_jitter_ms: [0.0; 2],
         }
     }
 }
@@ -255,7 +303,36 @@ pub struct Scenario {
     pub vehicle: Vehicle,
     #[serde(default)]
     pub sensors: Sensors,
+    /// Door and boarding shocks at standstill: decaying body-pitch oscillations.
+    #[serde(default)]
+    pub shocks: Vec<Shock>,
+    /// Spans without IMU samples: (start s, duration s).
+    #[serde(default)]
+    pub imu_gaps: Vec<(f64, f64)>,
     pub seed: u64,
+}
+
+/// A decaying body-pitch oscillation, such as a door slammed or a passenger boarding.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Shock {
+    pub t_s: f64,
+    pub amplitude_deg: f64,
+    pub freq_hz: f64,
+    /// Time constant of the exponential decay, s.
+    pub decay_s: f64,
+}
+
+impl Shock {
+    /// Pitch added at time `t`, rad.
+    pub fn pitch_rad(&self, t: f64) -> f64 {
+        if t < self.t_s {
+            return 0.0;
+        }
+        let x = t - self.t_s;
+        self.amplitude_deg.to_radians()
+            * (-x / self.decay_s).exp()
+            * (std::f64::consts::TAU * self.freq_hz * x).sin()
+    }
 }
 
 impl Scenario {

@@ -1,0 +1,319 @@
+//! The `realistic` scenario family: drives with the physics that real cars and other
+//! vehicle models show and that the estimator must not be fooled by. Every effect is an
+//! option of the `[realistic]` table of a scenario file; each is on by default there.
+//! README ("Realistic drives") states how each was sized.
+
+use super::suite::DriveSpec;
+use crate::sim::noise::Gauss;
+use crate::sim::scenario::{Road, Scenario, Sensors, Shock, SpeedProfile, Vehicle};
+use serde::{Deserialize, Serialize};
+
+/// Effects of a realistic drive. Ranges are [min, max], drawn per drive or per stop.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RealisticSpec {
+    /// Share of drive-offs that pull away gently, and their acceleration, m/s^2.
+    pub gentle_start_share: f64,
+    pub gentle_accel_mps2: [f64; 2],
+    /// Share of stops that never reach rest: the car slows to this speed, then goes, m/s.
+    pub rolling_stop_share: f64,
+    pub rolling_min_mps: [f64; 2],
+    /// Share of stops that last only `short_hold_s`, s.
+    pub short_stop_share: f64,
+    pub short_hold_s: [f64; 2],
+    /// Share of stops with a creep (the brake released and applied again) in the middle,
+    /// and the creep's peak speed, m/s; it moves the car well under a window.
+    pub creep_share: f64,
+    pub creep_peak_mps: [f64; 2],
+    /// Share of stops with a door or boarding shock; amplitude (deg), frequency (Hz) and
+    /// decay time constant (s) of the body-pitch oscillation.
+    pub door_shock_share: f64,
+    pub door_shock_deg: [f64; 2],
+    pub door_shock_hz: [f64; 2],
+    pub door_shock_decay_s: f64,
+    /// Share of stops with a gap in the IMU frames, and its length, s.
+    pub imu_gap_share: f64,
+    pub imu_gap_s: [f64; 2],
+    /// A load change starts this long into its stop and ramps over `load_ramp_s`, s.
+    pub load_change_delay_s: [f64; 2],
+    pub load_ramp_s: f64,
+    /// Share of load-change stops that last only `load_stop_short_hold_s` (the ramp ends
+    /// near drive-off), s.
+    pub load_stop_short_share: f64,
+    pub load_stop_short_hold_s: [f64; 2],
+    /// Grade changes: vertical curves of this length per percent of change, m, between
+    /// stretches of constant grade `grade_stretch_m` long; stops fall anywhere on them.
+    pub vertical_curve_m_per_pct: f64,
+    pub grade_stretch_m: [f64; 2],
+    /// Turns that start at the stop line begin this far past it, m; the steering ramps
+    /// in over `curve_ramp_m`, m.
+    pub turn_offset_m: [f64; 2],
+    pub curve_ramp_m: f64,
+    /// Vehicle: body pitch mode (Hz, damping ratio, deg per m/s^2), the IMU's lever arm
+    /// (m) and mounting (max |roll|, |pitch|, |yaw|, deg), structural vibration.
+    pub pitch_freq_hz: [f64; 2],
+    pub pitch_damping: [f64; 2],
+    pub pitch_per_accel_deg: [f64; 2],
+    pub lever_arm_m: [f64; 3],
+    pub imu_mount_max_deg: [f64; 3],
+    pub accel_ramp_s: f64,
+    pub vibration_mps2: f64,
+    pub vibration_long_share: f64,
+    /// Sensors: largest |bias| per axis (accelerometer m/s^2, gyro deg/s).
+    pub acc_bias_max_mps2: f64,
+    pub gyro_bias_max_dps: f64,
+}
+
+impl Default for RealisticSpec {
+    fn default() -> Self {
+        Self {
+            gentle_start_share: 0.4,
+            gentle_accel_mps2: [0.3, 0.6],
+            rolling_stop_share: 0.15,
+            rolling_min_mps: [0.05, 0.3],
+            short_stop_share: 0.15,
+            short_hold_s: [1.0, 2.0],
+            creep_share: 0.0,
+            creep_peak_mps: [0.05, 0.3],
+            door_shock_share: 0.33,
+            door_shock_deg: [0.1, 0.2],
+            door_shock_hz: [5.0, 8.0],
+            door_shock_decay_s: 0.1,
+            imu_gap_share: 0.2,
+            imu_gap_s: [0.1, 0.2],
+            load_change_delay_s: [1.0, 3.0],
+            load_ramp_s: 3.0,
+            load_stop_short_share: 0.5,
+            load_stop_short_hold_s: [4.0, 8.0],
+            vertical_curve_m_per_pct: 8.0,
+            grade_stretch_m: [30.0, 150.0],
+            turn_offset_m: [0.3, 1.0],
+            curve_ramp_m: 1.0,
+            pitch_freq_hz: [1.2, 1.4],
+            pitch_damping: [0.2, 0.4],
+            pitch_per_accel_deg: [0.15, 0.3],
+            lever_arm_m: [2.1, 0.65, 0.4],
+            imu_mount_max_deg: [0.8, 1.0, 1.5],
+            accel_ramp_s: 0.5,
+            vibration_mps2: 0.35,
+            vibration_long_share: 0.3,
+            acc_bias_max_mps2: 0.3,
+            gyro_bias_max_dps: 1.0,
+        }
+    }
+}
+
+/// What a stop is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopKind {
+    Full,
+    Rolling,
+}
+
+/// Where and when the stops of a realistic drive are, for the benchmark's per-stop checks.
+#[derive(Debug, Clone, Default)]
+pub struct StopPlan {
+    /// (time the stop begins s, time it ends s, kind, drive-off acceleration m/s^2).
+    pub stops: Vec<(f64, f64, StopKind, f64)>,
+    /// (stop index, time the load ramp ends s).
+    pub load_change: Option<(usize, f64)>,
+}
+
+fn pick(g: &mut Gauss, r: [f64; 2]) -> f64 {
+    r[0] + (r[1] - r[0]) * g.uniform()
+}
+
+/// Build one load case of a realistic drive.
+pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario, StopPlan) {
+    let mut g = Gauss::new(spec.seed);
+    let sym = |g: &mut Gauss, m: f64| (2.0 * g.uniform() - 1.0) * m;
+    let mut speed = SpeedProfile::default();
+    let mut plan = StopPlan::default();
+    let mut shocks = Vec::new();
+    let mut gaps = Vec::new();
+    let mut t = 0.0;
+    let mut s = 0.0;
+    let mut stop_s = vec![0.0];
+    let load_stop = spec.load_change_at_stop.filter(|_| load_idx > 0);
+    let leg_m = spec
+        .distance_km
+        .map(|km| km * 1000.0 / spec.stops.max(1) as f64);
+    // Each stop's kind and, for a rolling stop, the lowest speed it reaches (m/s).
+    let kinds: Vec<(StopKind, f64)> = (0..=spec.stops)
+        .map(|k| {
+            let rolling = g.uniform() < r.rolling_stop_share;
+            let v_min = pick(&mut g, r.rolling_min_mps);
+            if k > 0 && rolling && load_stop != Some(k) {
+                (StopKind::Rolling, v_min)
+            } else {
+                (StopKind::Full, 0.0)
+            }
+        })
+        .collect();
+    for k in 0..=spec.stops {
+        let (kind, v_min) = kinds[k];
+        let mut hold = if k > 0 && g.uniform() < r.short_stop_share {
+            pick(&mut g, r.short_hold_s)
+        } else {
+            pick(&mut g, spec.hold_s)
+        };
+        if load_stop == Some(k) && g.uniform() < r.load_stop_short_share {
+            hold = pick(&mut g, r.load_stop_short_hold_s);
+        }
+        let gentle = g.uniform() < r.gentle_start_share;
+        let accel = if gentle {
+            pick(&mut g, r.gentle_accel_mps2)
+        } else {
+            pick(&mut g, spec.accel_mps2)
+        };
+        let t_stop = t;
+        if kind == StopKind::Full {
+            if k > 0 && g.uniform() < r.creep_share && hold > 4.0 {
+                // Brake released, the car creeps, brake applied again.
+                let peak = pick(&mut g, r.creep_peak_mps);
+                let a = 0.5;
+                let h1 = 0.4 * hold;
+                let h2 = (hold - h1 - 2.0 * peak / a).max(1.0);
+                speed = speed
+                    .hold(h1)
+                    .accel(a, peak / a)
+                    .accel(-a, peak / a)
+                    .hold(h2);
+                s += peak * peak / a;
+                hold = h1 + 2.0 * peak / a + h2;
+            } else {
+                speed = speed.hold(hold);
+            }
+            if g.uniform() < r.door_shock_share && hold > 1.5 {
+                shocks.push(Shock {
+                    t_s: t + pick(&mut g, [0.5, hold - 0.5]),
+                    amplitude_deg: pick(&mut g, r.door_shock_deg),
+                    freq_hz: pick(&mut g, r.door_shock_hz),
+                    decay_s: r.door_shock_decay_s,
+                });
+            }
+            if g.uniform() < r.imu_gap_share && hold > 1.0 {
+                gaps.push((
+                    t + pick(&mut g, [0.3, hold - 0.4]),
+                    pick(&mut g, r.imu_gap_s),
+                ));
+            }
+            if load_stop == Some(k) {
+                let t0 = t + pick(&mut g, r.load_change_delay_s).min(hold - 0.5);
+                plan.load_change = Some((plan.stops.len(), t0 + r.load_ramp_s));
+            }
+            t += hold;
+        }
+        plan.stops.push((t_stop, t, kind, accel));
+        stop_s.push(s);
+        if k == spec.stops {
+            speed = speed.hold(8.0);
+            break;
+        }
+        // Drive off (from rest or from the rolling speed), cruise, brake to the next stop.
+        let v_top = pick(&mut g, spec.top_kmh) / 3.6;
+        let brake = pick(&mut g, spec.brake_mps2);
+        let ta = (v_top - v_min) / accel;
+        speed = speed.accel(accel, ta);
+        let accel_m = (v_top * v_top - v_min * v_min) / (2.0 * accel);
+        let v_end = kinds[k + 1].1;
+        let brake_m = (v_top * v_top - v_end * v_end) / (2.0 * brake);
+        let cruise_m = leg_m
+            .map_or(v_top * 5.0, |l| l - accel_m - brake_m)
+            .max(20.0);
+        speed = speed.hold(cruise_m / v_top);
+        let tb = (v_top - v_end) / brake;
+        speed = speed.accel(-brake, tb);
+        s += accel_m + cruise_m + brake_m;
+        t += ta + cruise_m / v_top + tb;
+    }
+
+    let road = hilly_road(spec, r, &mut g, s + 100.0);
+    let mut road = road;
+    road.curve_ramp_m = r.curve_ramp_m;
+    super::suite::add_bumps(&mut road, &stop_s[1..], spec.bump_share, &mut g);
+    for &x in stop_s.iter().skip(1) {
+        if g.uniform() < spec.turn_share {
+            let start = if g.uniform() < spec.turn_at_line_share {
+                x + pick(&mut g, r.turn_offset_m)
+            } else {
+                x + 12.0
+            };
+            let dir = if g.uniform() < 0.5 { 1.0 } else { -1.0 };
+            road.curves.push((
+                start,
+                start + 15.0 * std::f64::consts::FRAC_PI_2,
+                dir / 15.0,
+            ));
+        }
+    }
+    let base_load = spec.loads[0].pitch_deg;
+    let (load0, changes) = match (load_idx, plan.load_change) {
+        (0, _) => (base_load, Vec::new()),
+        (li, Some((_, t_end))) => (
+            base_load,
+            vec![(
+                t_end - r.load_ramp_s,
+                spec.loads[li].pitch_deg,
+                r.load_ramp_s,
+            )],
+        ),
+        (li, None) => (spec.loads[li].pitch_deg, Vec::new()),
+    };
+    let vehicle = Vehicle {
+        lever_arm_m: r.lever_arm_m,
+        pitch_per_accel_deg: pick(&mut g, r.pitch_per_accel_deg),
+        pitch_freq_hz: pick(&mut g, r.pitch_freq_hz),
+        pitch_damping: pick(&mut g, r.pitch_damping),
+        rough_road_mps2: r.vibration_mps2,
+        rough_road_long_share: r.vibration_long_share,
+        imu_mount_deg: [
+            sym(&mut g, r.imu_mount_max_deg[0]),
+            sym(&mut g, r.imu_mount_max_deg[1]),
+            sym(&mut g, r.imu_mount_max_deg[2]),
+        ],
+        accel_ramp_s: r.accel_ramp_s,
+        ..Vehicle::default()
+    };
+    let base = spec.sensors.clone().unwrap_or_default();
+    let sensors = Sensors {
+        acc_bias_mps2: [0; 3].map(|_| sym(&mut g, r.acc_bias_max_mps2)),
+        gyro_bias_dps: [0; 3].map(|_| sym(&mut g, r.gyro_bias_max_dps)),
+        ..base
+    };
+    let sc = Scenario {
+        speed,
+        road,
+        load_pitch_deg: load0,
+        load_changes: changes,
+        vehicle,
+        sensors,
+        shocks,
+        imu_gaps: gaps,
+        seed: spec.seed.wrapping_mul(31).wrapping_add(load_idx as u64),
+    };
+    (sc, plan)
+}
+
+/// A road of constant-grade stretches joined by vertical curves (the grade angle changes
+/// linearly with distance, `vertical_curve_m_per_pct` per percent).
+fn hilly_road(spec: &DriveSpec, r: &RealisticSpec, g: &mut Gauss, length_m: f64) -> Road {
+    let deg = |pct: f64| (pct / 100.0).atan().to_degrees();
+    let mut knots = Vec::new();
+    let mut s = -50.0;
+    let mut pct = (2.0 * g.uniform() - 1.0) * spec.grade_max_pct;
+    knots.push((s, deg(pct)));
+    while s < length_m {
+        s += pick(g, r.grade_stretch_m);
+        knots.push((s, deg(pct)));
+        let next = (2.0 * g.uniform() - 1.0) * spec.grade_max_pct;
+        s += (next - pct).abs() * r.vertical_curve_m_per_pct;
+        pct = next;
+        knots.push((s, deg(pct)));
+    }
+    Road {
+        grade_deg: knots,
+        curves: Vec::new(),
+        curve_ramp_m: 0.0,
+    }
+}
