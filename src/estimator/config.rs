@@ -43,6 +43,10 @@ pub struct EstimatorConfig {
     /// standstill mean within this, per axis, m/s^2. Constant braking has no variance,
     /// so this, not the stillness test, finds the moment the car came to rest.
     pub rest_acc_tol_mps2: f64,
+    /// While the wheels read zero, a standstill ends when the IMU sees the car pick up
+    /// this much speed since it was last surely at rest (a drive-off or creep inside the
+    /// wheel sensors' dead zone), m/s.
+    pub drive_off_speed_mps: f64,
     /// Coefficient alpha of the gyro-bias low-pass filter of eq. 7, per IMU sample (0..1].
     pub gyro_bias_alpha: f64,
     /// Horizontal travel of one slope window, T_d of eq. 15, m.
@@ -97,6 +101,7 @@ impl Default for EstimatorConfig {
             bias_gate_dps: 0.1,
             rest_acc_tol_mps2: 0.1,
             settle_time_s: 3.0,
+            drive_off_speed_mps: 0.06,
             gravity_walk_mps2_rts: 0.0005,
             gyro_bias_alpha: 0.01,
             window_distance_m: 2.0,
@@ -164,6 +169,7 @@ impl EstimatorConfig {
         pos("bias_gate_dps", self.bias_gate_dps)?;
         pos("rest_acc_tol_mps2", self.rest_acc_tol_mps2)?;
         pos("settle_time_s", self.settle_time_s)?;
+        pos("drive_off_speed_mps", self.drive_off_speed_mps)?;
         pos("gravity_walk_mps2_rts", self.gravity_walk_mps2_rts)?;
         if self.history_s < self.max_window_time_s + 2.0 {
             return Err(ConfigError {

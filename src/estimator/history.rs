@@ -5,6 +5,10 @@ use super::Estimator;
 use super::attitude;
 use nalgebra::{UnitQuaternion, Vector3};
 
+/// Half-width of the gyro smoothing behind the lever-arm acceleration, samples:
+/// `lever_acc_at(i)` needs twice this many samples after `i`.
+pub(super) const LEVER_SMOOTH_HALF: usize = 5;
+
 impl Estimator {
     /// Walking back from the newest sample, the index of the earliest sample of the
     /// trailing run whose 5-sample mean specific force matches `f_rest` (not before `floor`).
@@ -176,7 +180,7 @@ impl Estimator {
     /// tail of 0.1 deg/s as 1 mm/s^2 in the standstill mean: 0.05 deg of slope over a
     /// gentle 2 s window.
     pub(super) fn lever_acc_at(&self, i: usize) -> Vector3<f64> {
-        const H: usize = 5;
+        const H: usize = LEVER_SMOOTH_HALF;
         let lever = Vector3::from(self.cfg.lever_arm_m);
         if i < 2 * H || i + 2 * H >= self.hist.len() || lever == Vector3::zeros() {
             return Vector3::zeros();

@@ -18,6 +18,7 @@ mod events;
 mod fusion;
 mod gravity;
 mod history;
+mod motion;
 mod persist;
 mod ring;
 mod standstill;
@@ -65,6 +66,11 @@ pub struct Estimator {
     settle_queue: std::collections::VecDeque<ImuSample>,
     /// The last stillness window was close enough to the bias to update it.
     bias_window_ok: bool,
+    /// Mean specific force over the last stillness window, m/s^2.
+    still_mean_acc: Vector3<f64>,
+    /// The IMU saw the car move while the wheels read zero (a creep or a drive-off in
+    /// the wheel sensors' dead zone) since the last standstill began.
+    imu_moved: bool,
     fwd: WindowIntegrator,
     fwd_ctx: Option<ForwardCtx>,
     bwd: WindowIntegrator,
@@ -73,6 +79,10 @@ pub struct Estimator {
     last_slope_rad: Option<f64>,
     estimate: Option<Estimate>,
 }
+
+/// While the IMU-seen speed is above this share of `drive_off_speed_mps`, no sample
+/// joins the standstill reference: it may be the start of a drive-off.
+const MOTION_PAUSE_SHARE: f64 = 0.35;
 
 /// Highest IMU rate the buffers are sized for, Hz.
 const MAX_RATE_HZ: f64 = 200.0;
@@ -96,6 +106,8 @@ impl Estimator {
             standstill: None,
             bias_rps: None,
             bias_window_ok: false,
+            still_mean_acc: Vector3::zeros(),
+            imu_moved: false,
             settle_queue: std::collections::VecDeque::with_capacity(
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),
@@ -238,10 +250,18 @@ impl Estimator {
         }
 
         if self.standstill.is_some() {
-            if quiet {
-                self.update_standstill(&s, emit);
+            // Rocking, a door shock or a gap in the data only pause the standstill; it
+            // ends when the wheels turn or the IMU sees the car pick up speed.
+            let v = if wheels_zero {
+                self.track_motion()
             } else {
+                0.0
+            };
+            if !wheels_zero || v >= self.cfg.drive_off_speed_mps {
+                self.imu_moved |= wheels_zero;
                 self.end_standstill(s.t_s, emit);
+            } else if quiet && v < MOTION_PAUSE_SHARE * self.cfg.drive_off_speed_mps {
+                self.update_standstill(&s, emit);
             }
         } else if let (Some(q0), Some(w0)) = (self.quiet_since, self.wheels_zero_since) {
             if s.t_s - q0 >= self.cfg.still_time_s && s.t_s - w0 >= self.cfg.zero_speed_time_s {

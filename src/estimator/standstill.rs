@@ -3,6 +3,7 @@
 
 use super::attitude::{attitude_from_gravity, pitch_of};
 use super::gravity::pitch_from;
+use super::motion::MotionTracker;
 use super::window::{RejectReason, Step};
 use super::{Condition, Estimator, Event, ImuSample};
 use nalgebra::Vector3;
@@ -23,6 +24,11 @@ pub(super) struct Standstill {
     pub(super) pending: Option<(Vector3<f64>, u64)>,
     /// The car drove since the previous standstill.
     pub(super) moved: bool,
+    /// The IMU saw the car move in the wheel sensors' dead zone since the previous
+    /// standstill: a pitch step is not a load change.
+    pub(super) crept: bool,
+    /// Speed the IMU sees the car pick up; ends the standstill at a drive-off.
+    pub(super) motion: Option<MotionTracker>,
     /// Nothing watched the wheels between the load baseline and this standstill.
     pub(super) motion_unknown: bool,
     /// The settled reference exists and the baseline and deceleration window were handled.
@@ -76,6 +82,12 @@ impl Estimator {
             .max(first_quiet.saturating_sub(100))
             .min(n - 1);
         let moved = self.travelled_m > 0.5;
+        let crept = std::mem::take(&mut self.imu_moved);
+        let t_track = self
+            .hist
+            .get(n.saturating_sub(12).max(first_quiet).min(n - 1))
+            .t_s;
+        let motion = MotionTracker::new(&f_rest, t_track, self.gravity_mps2(&f_rest));
         // From here on the wheels are watched; before, motion may have gone unseen.
         let motion_unknown = self.motion_unknown && !moved;
         self.motion_unknown = false;
@@ -91,6 +103,8 @@ impl Estimator {
             block_t0_s: t_now,
             pending: None,
             moved,
+            crept,
+            motion,
             motion_unknown,
             settled_done: false,
         });
@@ -205,7 +219,7 @@ impl Estimator {
         let pitch = pitch_of(&q_ref);
         // Stopped or parked without driving since the last baseline: a pitch step is a load change.
         match self.baseline_pitch_rad {
-            Some(base) if !st.moved => {
+            Some(base) if !st.moved && !st.crept => {
                 let delta = pitch - base;
                 if delta.abs().to_degrees() > self.cfg.load_change_deg {
                     if st.motion_unknown {

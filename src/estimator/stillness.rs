@@ -34,6 +34,7 @@ impl Estimator {
             return false;
         }
         let kf = k as f64;
+        self.still_mean_acc = sa / kf;
         let std_max = |s: Vector3<f64>, q: Vector3<f64>| {
             let m = s / kf;
             (q / kf - m.component_mul(&m))

@@ -314,16 +314,22 @@ pub fn simulate(sc: &Scenario) -> Drive {
         // Integrate to the next grid point, splitting a step that crosses a segment end
         // (a brake segment ends exactly at rest; rounding it to the grid would leave
         // the car creeping at up to a*h through the following stop).
-        let a_step = match (seg < segs.len(), segs.get(seg + 1)) {
-            (true, Some(next))
-                if veh.accel_ramp_s > 0.0
-                    && !(segs[seg].accel_mps2 < 0.0 && next.accel_mps2 == 0.0) =>
-            {
-                0.5 * (a_long + ramped_accel(segs, veh.accel_ramp_s, t + h))
+        let end = segs.get(seg).map(|x| seg_t0 + x.duration_s);
+        let next = segs.get(seg + 1);
+        let a_step = match (end, next) {
+            // Braking ends at rest inside this step: exact split, never a creep.
+            (Some(end), Some(next)) if t + h > end => {
+                let before = end - t;
+                let after = if veh.accel_ramp_s > 0.0 && !(a_long < 0.0 && next.accel_mps2 == 0.0) {
+                    ramped_accel(segs, veh.accel_ramp_s, t + h)
+                } else {
+                    next.accel_mps2
+                };
+                (a_long * before + after * (h - before)) / h
             }
-            (true, Some(next)) if t + h > seg_t0 + segs[seg].duration_s => {
-                let before = seg_t0 + segs[seg].duration_s - t;
-                (a_long * before + next.accel_mps2 * (h - before)) / h
+            // Within a ramp the acceleration is linear: the trapezoid is exact.
+            _ if veh.accel_ramp_s > 0.0 => {
+                0.5 * (a_long + ramped_accel(segs, veh.accel_ramp_s, t + h))
             }
             _ => a_long,
         };
