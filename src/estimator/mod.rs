@@ -71,6 +71,8 @@ pub struct Estimator {
     /// The IMU saw the car move while the wheels read zero (a creep or a drive-off in
     /// the wheel sensors' dead zone) since the last standstill began.
     imu_moved: bool,
+    /// Tracker of the motion after the IMU ended a standstill in the dead zone.
+    dead_zone_motion: Option<motion::MotionTracker>,
     fwd: WindowIntegrator,
     fwd_ctx: Option<ForwardCtx>,
     bwd: WindowIntegrator,
@@ -108,6 +110,7 @@ impl Estimator {
             bias_window_ok: false,
             still_mean_acc: Vector3::zeros(),
             imu_moved: false,
+            dead_zone_motion: None,
             settle_queue: std::collections::VecDeque::with_capacity(
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),
@@ -259,11 +262,19 @@ impl Estimator {
             };
             if !wheels_zero || v >= self.cfg.drive_off_speed_mps {
                 self.imu_moved |= wheels_zero;
+                self.dead_zone_motion = self
+                    .standstill
+                    .and_then(|st| st.motion)
+                    .filter(|_| wheels_zero);
                 self.end_standstill(s.t_s, emit);
             } else if quiet && v < MOTION_PAUSE_SHARE * self.cfg.drive_off_speed_mps {
                 self.update_standstill(&s, emit);
             }
-        } else if let (Some(q0), Some(w0)) = (self.quiet_since, self.wheels_zero_since) {
+        } else if let (true, Some(q0), Some(w0)) = (
+            self.track_dead_zone(wheels_zero),
+            self.quiet_since,
+            self.wheels_zero_since,
+        ) {
             if s.t_s - q0 >= self.cfg.still_time_s && s.t_s - w0 >= self.cfg.zero_speed_time_s {
                 self.begin_standstill(q0, s.t_s, emit);
             }

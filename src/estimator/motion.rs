@@ -25,6 +25,10 @@ const ANCHOR_TOL_RAD: f64 = 0.3 * std::f64::consts::PI / 180.0;
 /// sample needs the gyro readings after it.
 const LAG_SAMPLES: usize = 2 * LEVER_SMOOTH_HALF + 1;
 
+/// After a drive-off in the dead zone, the car counts as at rest again (a creep that
+/// ended) once the tracked speed is below this share of `drive_off_speed_mps`.
+const REST_AGAIN_SHARE: f64 = 0.3;
+
 #[derive(Debug, Clone, Copy)]
 pub(super) struct MotionTracker {
     /// Body attitude carried by the gyro since the last anchor.
@@ -52,12 +56,36 @@ impl MotionTracker {
 }
 
 impl Estimator {
-    /// Advance the standstill's motion tracker over the samples that have become
-    /// available to it; returns the speed picked up since the last anchor, m/s.
+    /// Advance the standstill's motion tracker; returns the speed picked up since the
+    /// car was last surely at rest, m/s.
     pub(super) fn track_motion(&mut self) -> f64 {
         let Some(mut m) = self.standstill.and_then(|st| st.motion) else {
             return 0.0;
         };
+        let v = self.advance_motion(&mut m);
+        if let Some(st) = self.standstill.as_mut() {
+            st.motion = Some(m);
+        }
+        v
+    }
+
+    /// Carry on tracking after the IMU ended a standstill while the wheels still read
+    /// zero: until the wheels see the drive-off, or the tracker sees the car at rest
+    /// again (a creep), no new standstill may begin. Returns whether one may.
+    pub(super) fn track_dead_zone(&mut self, wheels_zero: bool) -> bool {
+        let Some(mut m) = self.dead_zone_motion.take() else {
+            return true;
+        };
+        if !wheels_zero {
+            return true;
+        }
+        let v = self.advance_motion(&mut m);
+        self.dead_zone_motion = Some(m);
+        v < REST_AGAIN_SHARE * self.cfg.drive_off_speed_mps
+    }
+
+    /// Integrate the samples that have become available to `m`.
+    fn advance_motion(&self, m: &mut MotionTracker) -> f64 {
         let n = self.hist.len();
         if n <= LAG_SAMPLES + 1 {
             return m.speed_mps();
@@ -90,9 +118,12 @@ impl Estimator {
                 }
             }
         }
-        if let Some(st) = self.standstill.as_mut() {
-            st.motion = Some(m);
-        }
         m.speed_mps()
+    }
+
+    /// Time from which a tracker started now integrates: the newest sample it can use.
+    pub(super) fn motion_start_s(&self) -> f64 {
+        let n = self.hist.len();
+        self.hist.get(n.saturating_sub(LAG_SAMPLES + 1)).t_s
     }
 }

@@ -83,11 +83,9 @@ impl Estimator {
             .min(n - 1);
         let moved = self.travelled_m > 0.5;
         let crept = std::mem::take(&mut self.imu_moved);
-        let t_track = self
-            .hist
-            .get(n.saturating_sub(12).max(first_quiet).min(n - 1))
-            .t_s;
+        let t_track = self.motion_start_s().max(self.hist.get(first_quiet).t_s);
         let motion = MotionTracker::new(&f_rest, t_track, self.gravity_mps2(&f_rest));
+        self.dead_zone_motion = None;
         // From here on the wheels are watched; before, motion may have gone unseen.
         let motion_unknown = self.motion_unknown && !moved;
         self.motion_unknown = false;
