@@ -9,6 +9,13 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// `lever_acc_at(i)` needs twice this many samples after `i`.
 pub(super) const LEVER_SMOOTH_HALF: usize = 5;
 
+/// Samples averaged where a walk looks for the car at rest (noise of one sample is
+/// about 0.03 m/s^2; five keep a single outlier from ending the rest).
+pub(super) const REST_AVG: usize = 5;
+
+/// A forward walk starts this long before the extrapolated drive-off, s.
+const DRIVE_OFF_MARGIN_S: f64 = 0.05;
+
 impl Estimator {
     /// Walking back from the newest sample, the index of the earliest sample of the
     /// trailing run whose 5-sample mean specific force matches `f_rest` (not before `floor`).
@@ -30,6 +37,50 @@ impl Estimator {
             i -= 1;
         }
         edge
+    }
+
+    /// Walking back from the newest sample, the newest one (not before `floor`) at which
+    /// the car was still at rest: the mean specific force over `REST_AVG` samples
+    /// matches the standstill reference `g_mean`, and the body does not pitch. A driver
+    /// ramps the acceleration in, and the body starts to squat with it: where the force
+    /// first departs, the IMU 2 m ahead of the pitch centre already moves with the
+    /// pitch rate, which a walk started there would miss.
+    pub(super) fn drive_off_start(&self, g_mean: &Vector3<f64>, floor: usize) -> usize {
+        let n = self.hist.len();
+        let bias_y = self.bias_rps.map_or(0.0, |b| b.y);
+        let gate = self.cfg.bias_gate_dps.to_radians();
+        let tol = self.cfg.rest_acc_tol_mps2;
+        // Newest index whose mean departs by at most twice the tolerance, then by at most
+        // the tolerance (and the body does not pitch).
+        let (mut i_twice, mut i_rest) = (None, None);
+        let mut i = n - 1;
+        while i >= floor + REST_AVG {
+            let (mut f, mut wy) = (Vector3::zeros(), 0.0);
+            for j in i + 1 - REST_AVG..=i {
+                let x = self.hist.get(j);
+                f += x.acc();
+                wy += x.gyro_rps().y;
+            }
+            let k = REST_AVG as f64;
+            let dev = (f / k - g_mean).amax();
+            if dev <= 2.0 * tol {
+                i_twice.get_or_insert(i);
+            }
+            if dev <= tol && (wy / k - bias_y).abs() <= gate {
+                i_rest = Some(i);
+                break;
+            }
+            i -= 1;
+        }
+        let Some(i_rest) = i_rest else {
+            return n - 1;
+        };
+        // A driver's acceleration ramps in: the force rose about linearly from the true
+        // start, so the start lies as far before the first crossing as the second
+        // crossing lies after it.
+        let rise = i_twice.map_or(0, |i2| i2.saturating_sub(i_rest));
+        let t0 = self.hist.get(i_rest.saturating_sub(rise).max(floor)).t_s - DRIVE_OFF_MARGIN_S;
+        self.index_at(t0).max(floor)
     }
 
     /// Index of the first history sample at or after `t`.

@@ -21,6 +21,9 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// attitude within this, rad (0.3 deg: a gentle 0.05 m/s^2 acceleration is outside).
 const ANCHOR_TOL_RAD: f64 = 0.3 * std::f64::consts::PI / 180.0;
 
+/// Shortest time between two anchors, s.
+const ANCHOR_PERIOD_S: f64 = 1.0;
+
 /// Samples the tracker runs behind the newest one: the lever-arm acceleration at a
 /// sample needs the gyro readings after it.
 const LAG_SAMPLES: usize = 2 * LEVER_SMOOTH_HALF + 1;
@@ -37,6 +40,8 @@ pub(super) struct MotionTracker {
     v_mps: f64,
     /// Time of the last sample integrated, s.
     t_last_s: f64,
+    /// Time of the last anchor, s.
+    t_anchor_s: f64,
     gravity_mps2: f64,
 }
 
@@ -46,6 +51,7 @@ impl MotionTracker {
             q: attitude_from_gravity(f_rest)?,
             v_mps: 0.0,
             t_last_s: t_s,
+            t_anchor_s: t_s,
             gravity_mps2,
         })
     }
@@ -110,11 +116,14 @@ impl Estimator {
             i += 1;
         }
         // A settled window that agrees with the carried tilt: the car is at rest there.
-        if self.bias_window_ok {
+        // Checked once per period, so that an acceleration ramping in slowly cannot be
+        // absorbed a sample at a time.
+        if self.bias_window_ok && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S {
             if let Some(q_now) = attitude_from_gravity(&self.still_mean_acc) {
                 if (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD {
                     m.q = q_now;
                     m.v_mps = 0.0;
+                    m.t_anchor_s = m.t_last_s;
                 }
             }
         }

@@ -306,21 +306,7 @@ impl Estimator {
         let n = self.hist.len();
         let floor = self.index_at(st.t_rest_s);
         let g_mean = st.mean();
-        let mut first = n - 1;
-        let mut i = n - 1;
-        while i >= floor + 5 {
-            let mut m = Vector3::zeros();
-            for j in i - 4..=i {
-                m += self.hist.get(j).acc();
-            }
-            if ((m / 5.0) - g_mean).amax() <= self.cfg.rest_acc_tol_mps2 {
-                first = i;
-                break;
-            }
-            i -= 1;
-        }
-        // Two samples of margin: a sample straddling the drive-off can still match.
-        let first = first.saturating_sub(2).max(floor);
+        let first = self.drive_off_start(&g_mean, floor);
         let last_settled = self.index_at(st.seg_last_s).min(n - 1);
         let q0 = self.carry(q_ref, last_settled, first);
         let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
