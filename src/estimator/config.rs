@@ -66,6 +66,8 @@ pub struct EstimatorConfig {
     /// Position of the IMU relative to the body pitch centre in body axes (x fwd, y left, z up), m.
     /// Body pitch under acceleration swings the IMU about that centre; the window removes it.
     pub lever_arm_m: [f64; 3],
+    /// Refine `lever_arm_m` along x and z from the body rocking seen after each stop.
+    pub learn_lever_arm: bool,
     /// IMU history kept for the deceleration window (integrated backwards from the stop), s.
     pub history_s: f64,
     /// A step in standstill IMU pitch above this is taken as a load change, deg.
@@ -112,6 +114,7 @@ impl Default for EstimatorConfig {
             max_window_time_s: 15.0,
             max_imu_gap_s: 0.1,
             lever_arm_m: [2.0, 0.0, 0.3],
+            learn_lever_arm: true,
             history_s: 30.0,
             load_change_deg: 0.2,
             load_block_s: 0.5,

@@ -58,7 +58,7 @@ impl Estimator {
             q0,
             gyro_bias_rps: self.bias_rps.unwrap_or_else(Vector3::zeros),
             gravity_mps2: g,
-            lever_arm_m: Vector3::from(c.lever_arm_m),
+            lever_arm_m: self.lever_arm(),
             distance_m: c.window_distance_m,
             check_extra_m: c.chord_check_extra_m,
             max_time_s: c.max_window_time_s,

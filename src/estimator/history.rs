@@ -166,7 +166,7 @@ impl Estimator {
         const REST_VELOCITY_S: f64 = 0.25;
         const SKIP: usize = 2;
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
-        let lever = Vector3::from(self.cfg.lever_arm_m);
+        let lever = self.lever_arm();
         let up = Vector3::new(0.0, 0.0, g);
         let n = self.hist.len();
         let t_i = self.hist.get(i).t_s;
@@ -231,10 +231,23 @@ impl Estimator {
     /// tail of 0.1 deg/s as 1 mm/s^2 in the standstill mean: 0.05 deg of slope over a
     /// gentle 2 s window.
     pub(super) fn lever_acc_at(&self, i: usize) -> Vector3<f64> {
-        const H: usize = LEVER_SMOOTH_HALF;
-        let lever = Vector3::from(self.cfg.lever_arm_m);
-        if i < 2 * H || i + 2 * H >= self.hist.len() || lever == Vector3::zeros() {
+        let lever = self.lever_arm();
+        if lever == Vector3::zeros() {
             return Vector3::zeros();
+        }
+        match self.rocking_at(i) {
+            Some((alpha, w)) => alpha.cross(&lever) + w.cross(&w.cross(&lever)),
+            None => Vector3::zeros(),
+        }
+    }
+
+    /// Angular acceleration (rad/s^2) and bias-free rate (rad/s) of the body at history
+    /// sample `i`, from gyro readings smoothed over `2 LEVER_SMOOTH_HALF + 1` samples;
+    /// `None` too near either end of the history.
+    pub(super) fn rocking_at(&self, i: usize) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        const H: usize = LEVER_SMOOTH_HALF;
+        if i < 2 * H || i + 2 * H >= self.hist.len() {
+            return None;
         }
         let rate = |c: usize| {
             let mut w = Vector3::zeros();
@@ -245,10 +258,12 @@ impl Estimator {
         };
         let span = self.hist.get(i + H).t_s - self.hist.get(i - H).t_s;
         if span <= 0.0 {
-            return Vector3::zeros();
+            return None;
         }
         let alpha = (rate(i + H) - rate(i - H)) / span;
-        let w = rate(i) - self.bias_rps.unwrap_or_else(Vector3::zeros);
-        alpha.cross(&lever) + w.cross(&w.cross(&lever))
+        Some((
+            alpha,
+            rate(i) - self.bias_rps.unwrap_or_else(Vector3::zeros),
+        ))
     }
 }

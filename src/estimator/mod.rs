@@ -18,6 +18,7 @@ mod events;
 mod fusion;
 mod gravity;
 mod history;
+mod lever;
 mod motion;
 mod persist;
 mod ring;
@@ -29,6 +30,7 @@ pub mod window;
 pub use average::{Averager, Combined};
 pub use config::{Averaging, ConfigError, EstimatorConfig};
 pub use events::{Condition, DropReason, Estimate, Event, WindowReport};
+pub use lever::LeverFit;
 pub use persist::{EstimatorState, StateError};
 pub use types::{ImuSample, WheelSpeeds};
 pub use window::RejectReason;
@@ -71,6 +73,9 @@ pub struct Estimator {
     /// The IMU saw the car move while the wheels read zero (a creep or a drive-off in
     /// the wheel sensors' dead zone) since the last standstill began.
     imu_moved: bool,
+    /// Lever-arm fit from the rocking at stops, and the arm in use, m.
+    lever_fit: LeverFit,
+    lever_arm: Vector3<f64>,
     /// Tracker of the motion after the IMU ended a standstill in the dead zone.
     dead_zone_motion: Option<motion::MotionTracker>,
     fwd: WindowIntegrator,
@@ -111,6 +116,8 @@ impl Estimator {
             still_mean_acc: Vector3::zeros(),
             imu_moved: false,
             dead_zone_motion: None,
+            lever_fit: LeverFit::default(),
+            lever_arm: Vector3::from(cfg.lever_arm_m),
             settle_queue: std::collections::VecDeque::with_capacity(
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),

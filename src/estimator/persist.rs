@@ -3,6 +3,7 @@
 use super::Estimator;
 use super::average::Averager;
 use super::gravity::GravityFilter;
+use super::lever::LeverFit;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -21,6 +22,9 @@ pub struct EstimatorState {
     /// Accelerometer bias along body x and y as seen in the standstill magnitude, m/s^2.
     #[serde(default)]
     pub accel_bias_xy_mps2: Option<[f64; 2]>,
+    /// Lever-arm fit from the rocking at stops (see `lever`).
+    #[serde(default)]
+    pub lever_fit: Option<LeverFit>,
 }
 
 impl EstimatorState {
@@ -58,6 +62,7 @@ impl Estimator {
             last_road_slope_deg: self.last_road_slope_deg(),
             gravity_mps2: self.gravity.map(|g| g.x.x),
             accel_bias_xy_mps2: self.gravity.map(|g| [g.x.y, g.x.z]),
+            lever_fit: Some(self.lever_fit),
         }
     }
 
@@ -105,12 +110,24 @@ impl Estimator {
                 return Err(StateError::Implausible("gravity_mps2"));
             }
         }
+        if let Some(f) = &st.lever_fit {
+            if !f.is_finite() || f.mtm.iter().step_by(4).any(|d| *d < 0.0) {
+                return Err(StateError::Implausible("lever_fit"));
+            }
+        }
         if let Some(b) = st.accel_bias_xy_mps2 {
             if b.iter().any(|x| !x.is_finite() || x.abs() > 2.0) {
                 return Err(StateError::Implausible("accel_bias_xy_mps2"));
             }
         }
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
+        let prior = Vector3::from(self.cfg.lever_arm_m);
+        self.lever_fit = st.lever_fit.unwrap_or_default();
+        self.lever_arm = if self.cfg.learn_lever_arm && prior != Vector3::zeros() {
+            self.lever_fit.solve(&prior)
+        } else {
+            prior
+        };
         self.motion_unknown = true;
         // A restored magnitude is as uncertain as a few seconds of standstill; new stops
         // refine it.

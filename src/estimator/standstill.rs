@@ -250,12 +250,11 @@ impl Estimator {
             return;
         }
         let g = self.gravity_mps2(&st.mean());
-        let (rest, q0) = self.rocking_rest_edge(
-            q_ref,
-            self.index_at(st.seg_first_s),
-            self.index_at(st.t_rest_s),
-            g,
-        );
+        let (settled, floor) = (self.index_at(st.seg_first_s), self.index_at(st.t_rest_s));
+        let (rest, _) = self.rocking_rest_edge(q_ref, settled, floor, g);
+        // The rocking after this stop refines the lever arm before the walk uses it.
+        self.learn_lever(q_ref, rest, settled, g);
+        let (rest, q0) = self.rocking_rest_edge(q_ref, settled, floor, g);
         let setup = self.window_setup(q0, g);
         let v0 = self.rest_velocity(q0, rest, true, g);
         self.bwd.start(setup, v0);
