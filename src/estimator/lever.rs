@@ -23,7 +23,12 @@ const PRIOR_WEIGHT: f64 = 0.03;
 const MAX_RESIDUAL_MPS2: f64 = 3.0;
 
 /// How long past the first settled sample the fit keeps reading, s.
-const FIT_TAIL_S: f64 = 1.0;
+const FIT_TAIL_S: f64 = 0.5;
+
+/// Samples whose angular acceleration is below this carry gyro noise more than
+/// rocking (0.007 rad/s^2 for a 0.01 deg/s/sqrt(Hz) gyro after the smoothing); noise in
+/// the regressor would shorten the fitted arm, so they are left out, rad/s^2.
+const MIN_ALPHA_RPS2: f64 = 0.05;
 
 /// Normal equations of the lever-arm fit.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
@@ -82,19 +87,24 @@ fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
 
 impl Estimator {
     /// Specific force at history sample `i` through the same smoothing that
-    /// `rocking_at` puts on the angular acceleration (a box over the smoothing width,
-    /// twice: a triangle), so that the fit compares like with like; the raw reading
-    /// against the smoothed alpha would read the arm about 8 % long at 1.5 Hz. The
-    /// caller checks that the samples exist (as `rocking_at` does).
+    /// `rocking_at` puts on the angular acceleration, so that the fit compares like with
+    /// like: the raw reading against the smoothed alpha would read the arm about 8 %
+    /// long at 1.5 Hz, and a door shock at 6 Hz is smoothed to a third. The caller
+    /// checks that the samples exist (as `rocking_at` does).
     fn acc_smoothed_like_rocking(&self, i: usize) -> Vector3<f64> {
         const H: usize = super::history::LEVER_SMOOTH_HALF;
-        let w = (2 * H + 1) as f64;
+        // alpha(i) = (mean rate over i+H +- H - mean rate over i-H +- H) / span: for each
+        // of the 2H+1 centres k, the rate difference across k +- H is the trapezoid mean
+        // of alpha over those 2H intervals. The same two means on the accelerometer:
         let mut sum = Vector3::zeros();
-        for j in i - 2 * H..=i + 2 * H {
-            let d = j.abs_diff(i) as f64;
-            sum += self.hist.get(j).acc() * ((w - d) / (w * w));
+        for k in i - H..=i + H {
+            let mut inner = (self.hist.get(k - H).acc() + self.hist.get(k + H).acc()) * 0.5;
+            for j in k + 1 - H..k + H {
+                inner += self.hist.get(j).acc();
+            }
+            sum += inner / (2 * H) as f64;
         }
-        sum
+        sum / (2 * H + 1) as f64
     }
 
     /// Lever arm in use: configured, refined by the rocking seen at stops, m.
@@ -118,7 +128,7 @@ impl Estimator {
         let n = self.hist.len();
         let t_end = self.hist.get(settled.min(n - 1)).t_s + FIT_TAIL_S;
         let last = self.index_at(t_end).min(n - 1);
-        if last <= rest + 2 {
+        if last <= rest + 2 * super::history::LEVER_SMOOTH_HALF + 2 {
             return;
         }
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
@@ -126,8 +136,13 @@ impl Estimator {
         let mut q = self.carry(q_ref, settled.min(n - 1), last);
         let mut fit = self.lever_fit;
         let mut i = last;
-        while i > rest + 2 {
-            if let Some((alpha, omega)) = self.rocking_at(i) {
+        // The smoothing reaches 2 H samples either side: keep braking out of it.
+        let first = rest + 2 * super::history::LEVER_SMOOTH_HALF + 2;
+        while i > first {
+            if let Some((alpha, omega)) = self
+                .rocking_at(i)
+                .filter(|(a, _)| a.norm() >= MIN_ALPHA_RPS2)
+            {
                 let res = self.acc_smoothed_like_rocking(i) - q.inverse() * up;
                 if res.amax() <= MAX_RESIDUAL_MPS2 {
                     let m = skew(&alpha) + skew(&omega) * skew(&omega);
