@@ -45,7 +45,13 @@ impl Averager {
 
     /// Add one window value, deg.
     pub fn push(&mut self, value_deg: f64) {
-        self.push_weighted(value_deg, 1.0);
+        self.push_window(value_deg, 1.0);
+    }
+
+    /// Add one window value (deg) with a weight relative to a typical window (its
+    /// inverse predicted variance against that of a typical window).
+    pub fn push_window(&mut self, value_deg: f64, weight: f64) {
+        self.push_weighted(value_deg, weight);
         self.accepted = self.accepted.saturating_add(1);
     }
 

@@ -82,6 +82,9 @@ pub struct EstimatorConfig {
     pub shift_deg: f64,
     /// See `shift_deg`; 0 disables the check.
     pub shift_windows: usize,
+    /// Weigh each window by its predicted error (long, slow windows integrate more
+    /// accelerometer noise) instead of equally.
+    pub weight_windows: bool,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -121,6 +124,7 @@ impl Default for EstimatorConfig {
             load_prior_windows: 4.0,
             shift_deg: 0.4,
             shift_windows: 3,
+            weight_windows: true,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,
