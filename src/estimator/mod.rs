@@ -38,7 +38,7 @@ pub use window::RejectReason;
 use gravity::{GravityFilter, pitch_from};
 use nalgebra::Vector3;
 use ring::Ring;
-use standstill::{ForwardCtx, Standstill};
+use standstill::{ForwardCtx, MIN_SETTLED_SAMPLES, Standstill};
 use window::WindowIntegrator;
 
 /// The estimator. See the module documentation.
@@ -160,7 +160,7 @@ impl Estimator {
     /// settled samples behind it. `None` while moving or before anything settled.
     pub fn standstill_pitch(&self) -> Option<(f64, f64)> {
         let st = self.standstill?;
-        if st.seg_n < 5 {
+        if st.seg_n < MIN_SETTLED_SAMPLES {
             return None;
         }
         Some((pitch_from(&st.mean())?.to_degrees(), st.settled_s()))
@@ -205,8 +205,9 @@ impl Estimator {
     /// End of input (end of a log, shutdown): evaluate what is still waiting, such as
     /// the deceleration window of a stop that has not settled for `settle_time_s` yet.
     pub fn finish(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
+        self.flush_block(t_s, emit);
         if let Some(st) = self.standstill {
-            if !st.settled_done && st.seg_n >= 5 {
+            if !st.settled_done && st.seg_n >= MIN_SETTLED_SAMPLES {
                 self.on_settled(t_s, emit);
             }
         }

@@ -8,6 +8,9 @@ use super::window::{RejectReason, Step};
 use super::{Condition, Estimator, Event, ImuSample};
 use nalgebra::Vector3;
 
+/// Fewest settled samples a reference is taken from.
+pub(super) const MIN_SETTLED_SAMPLES: u64 = 5;
+
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Standstill {
     /// Where the car came to rest (start of the deceleration walk).
@@ -20,8 +23,11 @@ pub(super) struct Standstill {
     pub(super) block_sum: Vector3<f64>,
     pub(super) block_n: u64,
     pub(super) block_t0_s: f64,
-    /// A block that differed from the segment, waiting for a second one to confirm.
-    pub(super) pending: Option<(Vector3<f64>, u64)>,
+    /// Time of the newest sample in the block, s.
+    pub(super) block_last_s: f64,
+    /// A block that differed from the segment, waiting for a second one to confirm:
+    /// (sum, samples, start time s).
+    pub(super) pending: Option<(Vector3<f64>, u64, f64)>,
     /// The car drove since the previous standstill.
     pub(super) moved: bool,
     /// The IMU saw the car move in the wheel sensors' dead zone since the previous
@@ -99,6 +105,7 @@ impl Estimator {
             block_sum: Vector3::zeros(),
             block_n: 0,
             block_t0_s: t_now,
+            block_last_s: t_now,
             pending: None,
             moved,
             crept,
@@ -144,62 +151,100 @@ impl Estimator {
         // would read without the rocking tail.
         let f = s.acc() - self.lever_acc_at(self.index_at(s.t_s));
         self.update_gravity(s.t_s, &f);
-        let block_s = self.cfg.load_block_s;
-        let settle_s = self.cfg.settle_time_s;
+        let Some(st) = self.standstill.as_mut() else {
+            return;
+        };
+        if st.block_n == 0 {
+            st.block_t0_s = s.t_s;
+        }
+        st.block_sum += f;
+        st.block_n += 1;
+        st.block_last_s = s.t_s;
+        if s.t_s - st.block_t0_s >= self.cfg.load_block_s {
+            self.close_block(s.t_s, emit);
+        }
+        // Wait for a long gravity average, but not so long that the history loses the
+        // samples before the stop.
         let deadline_s = self.cfg.history_s - self.cfg.max_window_time_s - 1.0;
+        let Some(st) = self.standstill else { return };
+        if !st.settled_done
+            && st.seg_n > 0
+            && (st.settled_s() >= self.cfg.settle_time_s || s.t_s - st.t_rest_s >= deadline_s)
+        {
+            self.on_settled(s.t_s, emit);
+        }
+    }
+
+    /// Close the current block of settled samples: it joins the segment when it agrees
+    /// with it; two blocks in a row that agree with each other on another pitch are a
+    /// load change. Blocks are compared from the first settled sample on, so a load that
+    /// ramps in while the stop is still settling is seen at this stop: the deceleration
+    /// window then uses the segment from before the change as its reference, and the
+    /// acceleration window the one after it.
+    pub(super) fn close_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
         let thr = self.cfg.load_change_deg.to_radians();
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
-        let s = *s;
-        if st.seg_n == 0 {
-            st.seg_first_s = s.t_s;
-            st.block_t0_s = s.t_s;
-        }
-        if !st.settled_done {
-            st.seg_sum += f;
-            st.seg_n += 1;
-            st.seg_last_s = s.t_s;
-            // Wait for a long gravity average, but not so long that the history loses
-            // the samples before the stop.
-            if st.settled_s() >= settle_s || s.t_s - st.t_rest_s >= deadline_s {
-                self.on_settled(s.t_s, emit);
-            }
+        if st.block_n == 0 {
             return;
         }
-        st.seg_last_s = s.t_s;
-        st.block_sum += f;
-        st.block_n += 1;
-        if s.t_s - st.block_t0_s < block_s {
-            return;
-        }
-        let block_mean = st.block_sum / st.block_n as f64;
-        let (block, block_n) = (st.block_sum, st.block_n);
+        let (block, block_n, block_t0) = (st.block_sum, st.block_n, st.block_t0_s);
+        let block_last = st.block_last_s;
         st.block_sum = Vector3::zeros();
         st.block_n = 0;
-        st.block_t0_s = s.t_s;
+        st.block_t0_s = t_s;
+        if st.seg_n == 0 {
+            st.seg_sum = block;
+            st.seg_n = block_n;
+            st.seg_first_s = block_t0;
+            st.seg_last_s = block_last;
+            return;
+        }
+        let block_mean = block / block_n as f64;
         let (Some(bp), Some(sp)) = (pitch_from(&block_mean), pitch_from(&st.mean())) else {
             return;
         };
         if (bp - sp).abs() <= thr {
             st.seg_sum += block;
             st.seg_n += block_n;
+            st.seg_last_s = block_last;
             st.pending = None;
             return;
         }
         match st.pending.take() {
-            Some((psum, pn))
+            Some((psum, pn, pt0))
                 if pitch_from(&(psum / pn as f64))
                     .is_some_and(|pp| (pp - bp).abs() <= thr / 2.0) =>
             {
                 // Two blocks agree on a new pitch: the load changed.
+                if !st.settled_done {
+                    // The stop settles on what came before the change.
+                    self.on_settled(t_s, emit);
+                }
+                let Some(st) = self.standstill.as_mut() else {
+                    return;
+                };
                 st.seg_sum = psum + block;
                 st.seg_n = pn + block_n;
+                st.seg_first_s = pt0;
+                st.seg_last_s = block_last;
                 let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
                 let delta = new_pitch - sp;
-                self.apply_load_change(delta, new_pitch, s.t_s, emit);
+                self.apply_load_change(delta, new_pitch, t_s, emit);
             }
-            _ => st.pending = Some((block, block_n)),
+            _ => st.pending = Some((block, block_n, block_t0)),
+        }
+    }
+
+    /// Close a partial block (at the end of a stop or of the input) if it holds enough
+    /// samples to compare.
+    pub(super) fn flush_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
+        if self
+            .standstill
+            .is_some_and(|st| st.block_n >= MIN_SETTLED_SAMPLES)
+        {
+            self.close_block(t_s, emit);
         }
     }
 
@@ -276,8 +321,9 @@ impl Estimator {
     }
 
     pub(super) fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
+        self.flush_block(t_now, emit);
         let Some(st) = self.standstill else { return };
-        if !st.settled_done && st.seg_n >= 5 {
+        if !st.settled_done && st.seg_n >= MIN_SETTLED_SAMPLES {
             // A short stop: use what settled.
             self.on_settled(t_now, emit);
         }
@@ -286,7 +332,7 @@ impl Estimator {
             t_s: t_now,
             duration_s: t_now - st.t_rest_s,
         });
-        let q_ref = if st.seg_n >= 5 {
+        let q_ref = if st.seg_n >= MIN_SETTLED_SAMPLES {
             attitude_from_gravity(&st.mean())
         } else {
             None
@@ -310,7 +356,8 @@ impl Estimator {
         let q0 = self.carry(q_ref, last_settled, first);
         let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
-        let settled_at_start = st.seg_n >= 5 && self.hist.get(first).t_s - st.seg_last_s < 1.0;
+        let settled_at_start =
+            st.seg_n >= MIN_SETTLED_SAMPLES && self.hist.get(first).t_s - st.seg_last_s < 1.0;
         let v0 = if settled_at_start {
             Vector3::zeros()
         } else {
