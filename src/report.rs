@@ -428,22 +428,24 @@ pub fn bench_accuracy(
         } else {
             writeln!(
                 out,
-                "| scenario | load | method | seeds | mean abs err | worst drive | p95 window err | accepted | never valid |"
+                "| scenario | load | method | seeds | mean abs err | median drive | worst drive | mean window err | p95 window err | accepted | never valid |"
             )?;
             writeln!(
                 out,
-                "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+                "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
             )?;
             for p in &pooled {
                 writeln!(
                     out,
-                    "| {} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {} | {} |",
+                    "| {} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {:+.3} | {:.3} | {} | {} |",
                     p.scenario,
                     p.load,
                     p.method,
                     p.seeds,
                     p.mean_abs_err_deg,
+                    p.median_mean_abs_err_deg,
                     p.worst_mean_abs_err_deg,
+                    p.mean_window_err_deg,
                     p.p95_window_err_deg,
                     p.accepted,
                     p.never_valid,
@@ -483,6 +485,40 @@ pub fn bench_accuracy(
             )?;
         }
     }
+    if cases.iter().any(|c| c.plan.is_some()) {
+        let checks = stop_checks(&cases, threads);
+        let summary = crate::bench::stops::summarize(&checks);
+        if json {
+            for s in &summary {
+                writeln!(out, "{}", serde_json::to_string(s)?)?;
+            }
+        } else {
+            writeln!(out)?;
+            writeln!(
+                out,
+                "| scenario | load | drives | gentle drive-offs with a window | rolling stops with output | load changes applied before drive-off | valid within 5 stops | leveld mean window err |"
+            )?;
+            writeln!(out, "| --- | --- | --- | --- | --- | --- | --- | --- |")?;
+            for s in &summary {
+                writeln!(
+                    out,
+                    "| {} | {} | {} | {}/{} | {}/{} | {}/{} | {}/{} | {:+.3} |",
+                    s.scenario,
+                    s.load,
+                    s.drives,
+                    s.gentle_accepted,
+                    s.gentle_drive_offs,
+                    s.rolling_with_output,
+                    s.rolling_stops,
+                    s.load_applied,
+                    s.load_changes,
+                    s.valid_within_5,
+                    s.valid_checked,
+                    s.mean_window_err_deg,
+                )?;
+            }
+        }
+    }
     if let Some(dir) = plots {
         let shown: Vec<_> = rows
             .iter()
@@ -496,4 +532,28 @@ pub fn bench_accuracy(
         crate::bench::plots::write(dir, &shown)?;
     }
     Ok(0)
+}
+
+/// Per-stop checks of the realistic cases, on `threads` threads.
+fn stop_checks(
+    cases: &[crate::bench::suite::Case],
+    threads: usize,
+) -> Vec<crate::bench::stops::StopChecks> {
+    use crate::bench::baselines::{VALID_MAX_STD_ERR_DEG, VALID_MIN_WEIGHT};
+    let real: Vec<&crate::bench::suite::Case> = cases.iter().filter(|c| c.plan.is_some()).collect();
+    let valid = |e: &crate::estimator::Estimate| {
+        e.std_err_deg <= VALID_MAX_STD_ERR_DEG && e.weight >= VALID_MIN_WEIGHT
+    };
+    let mut out = vec![crate::bench::stops::StopChecks::default(); real.len()];
+    std::thread::scope(|sc| {
+        let chunk = real.len().div_ceil(threads.max(1)).max(1);
+        for (cs, slots) in real.chunks(chunk).zip(out.chunks_mut(chunk)) {
+            sc.spawn(move || {
+                for (c, slot) in cs.iter().zip(slots.iter_mut()) {
+                    *slot = crate::bench::stops::check(c, &valid);
+                }
+            });
+        }
+    });
+    out
 }

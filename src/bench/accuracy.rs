@@ -197,8 +197,11 @@ pub struct Pooled {
     pub seeds: usize,
     /// Mean over the seeds of each drive's mean |error|, deg.
     pub mean_abs_err_deg: f64,
-    /// The worst drive's mean |error|, deg.
+    /// The median and the worst drive's mean |error|, deg.
+    pub median_mean_abs_err_deg: f64,
     pub worst_mean_abs_err_deg: f64,
+    /// Mean signed error over all the seeds' windows, deg (a bias shows here).
+    pub mean_window_err_deg: f64,
     /// 95th percentile of |single window error| over all the seeds' windows, deg.
     pub p95_window_err_deg: f64,
     pub accepted: usize,
@@ -226,10 +229,18 @@ pub fn pool(rows: &[Row]) -> Vec<Pooled> {
                 .map(|r| r.mean_abs_err_deg)
                 .filter(|x| x.is_finite())
                 .collect();
-            let mut w: Vec<f64> = group
+            let signed: Vec<f64> = group
                 .iter()
-                .flat_map(|r| r.window_errors.iter().map(|e| e.abs()))
+                .flat_map(|r| r.window_errors.iter().copied())
                 .collect();
+            let mut w: Vec<f64> = signed.iter().map(|e| e.abs()).collect();
+            let mut sorted = finite.clone();
+            sorted.sort_by(f64::total_cmp);
+            let median = match sorted.len() {
+                0 => f64::NAN,
+                n if n % 2 == 1 => sorted[n / 2],
+                n => 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]),
+            };
             w.sort_by(f64::total_cmp);
             Pooled {
                 scenario: s.to_string(),
@@ -241,7 +252,13 @@ pub fn pool(rows: &[Row]) -> Vec<Pooled> {
                 } else {
                     finite.iter().sum::<f64>() / finite.len() as f64
                 },
+                median_mean_abs_err_deg: median,
                 worst_mean_abs_err_deg: finite.iter().copied().fold(f64::NAN, f64::max),
+                mean_window_err_deg: if signed.is_empty() {
+                    f64::NAN
+                } else {
+                    signed.iter().sum::<f64>() / signed.len() as f64
+                },
                 p95_window_err_deg: percentile95(&w),
                 accepted: group.iter().map(|r| r.accepted).sum(),
                 never_valid: group.iter().filter(|r| r.time_to_valid_s.is_none()).count(),

@@ -21,6 +21,12 @@ pub trait PitchMethod {
 
 /// leveld's estimator as a [`PitchMethod`]; converged = VALID (standard error and
 /// window count within the given bounds).
+/// The benchmark's converged rule for leveld (the reference config's VALID): standard
+/// error at most this, deg ...
+pub const VALID_MAX_STD_ERR_DEG: f64 = 0.06;
+/// ... with at least this many windows' weight behind the estimate.
+pub const VALID_MIN_WEIGHT: f64 = 4.0;
+
 pub struct Leveld {
     est: Estimator,
     windows: Vec<(f64, f64)>,
@@ -36,8 +42,8 @@ impl Leveld {
             est: Estimator::new(cfg).expect("valid config"),
             windows: Vec::new(),
             rejected: 0,
-            max_std_err_deg: 0.06,
-            min_windows: 4.0,
+            max_std_err_deg: VALID_MAX_STD_ERR_DEG,
+            min_windows: VALID_MIN_WEIGHT,
             name,
         }
     }

@@ -4,4 +4,5 @@ pub mod accuracy;
 pub mod baselines;
 pub mod plots;
 pub mod realistic;
+pub mod stops;
 pub mod suite;
