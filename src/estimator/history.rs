@@ -83,6 +83,36 @@ impl Estimator {
         self.index_at(t0).max(floor)
     }
 
+    /// Mean specific force of the rest samples from `rest` to `first`, each turned by
+    /// the gyro into the body frame at `first` and freed of the lever-arm motion: the
+    /// gravity reference at `first` even while the body rocked. `None` with less than
+    /// `MIN_REST_S` of samples.
+    pub(super) fn derotated_reference(&self, rest: usize, first: usize) -> Option<Vector3<f64>> {
+        const MIN_REST_S: f64 = 0.3;
+        // The first samples after the rest edge still carry the stop jerk.
+        let start = self.index_at(self.hist.get(rest).t_s + 0.1);
+        if first <= start || self.hist.get(first).t_s - self.hist.get(start).t_s < MIN_REST_S {
+            return None;
+        }
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        // Rotation from the frame at sample j to the frame at `first`.
+        let mut q = UnitQuaternion::identity();
+        let (mut sum, mut k) = (Vector3::zeros(), 0usize);
+        let mut j = first;
+        loop {
+            sum += q * (self.hist.get(j).acc() - self.lever_acc_at(j));
+            k += 1;
+            if j == start {
+                break;
+            }
+            let (a, b) = (self.hist.get(j - 1), self.hist.get(j));
+            let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
+            q = attitude::propagate(&q, &w, a.t_s - b.t_s);
+            j -= 1;
+        }
+        Some(sum / k as f64)
+    }
+
     /// Index of the first history sample at or after `t`.
     pub(super) fn index_at(&self, t: f64) -> usize {
         let (mut lo, mut hi) = (0, self.hist.len());

@@ -33,6 +33,8 @@ pub(super) struct Standstill {
     /// The IMU saw the car move in the wheel sensors' dead zone since the previous
     /// standstill: a pitch step is not a load change.
     pub(super) crept: bool,
+    /// Specific force at the start of the standstill (before anything settled), m/s^2.
+    pub(super) f_begin: Vector3<f64>,
     /// Speed the IMU sees the car pick up; ends the standstill at a drive-off.
     pub(super) motion: Option<MotionTracker>,
     /// Nothing watched the wheels between the load baseline and this standstill.
@@ -109,6 +111,7 @@ impl Estimator {
             pending: None,
             moved,
             crept,
+            f_begin: f_rest,
             motion,
             motion_unknown,
             settled_done: false,
@@ -332,12 +335,25 @@ impl Estimator {
             t_s: t_now,
             duration_s: t_now - st.t_rest_s,
         });
-        let q_ref = if st.seg_n >= MIN_SETTLED_SAMPLES {
+        // Start the walk at the last sample that still matched the standstill: from
+        // there the car moves. The current sample is pushed by the caller.
+        let n = self.hist.len();
+        let floor = self.index_at(st.t_rest_s);
+        let settled = st.seg_n >= MIN_SETTLED_SAMPLES;
+        let g_mean = if settled { st.mean() } else { st.f_begin };
+        let first = self.drive_off_start(&g_mean, floor);
+        let q_ref = if settled {
             attitude_from_gravity(&st.mean())
+                .map(|q| (q, self.carry(q, self.index_at(st.seg_last_s).min(n - 1), first)))
         } else {
-            None
+            // A stop too short to settle (a stop sign, a queue): its rest samples,
+            // turned by the gyro into the body frame at drive-off, give the reference
+            // there although the body still rocked.
+            self.derotated_reference(floor, first)
+                .and_then(|f| attitude_from_gravity(&f))
+                .map(|q| (q, q))
         };
-        let Some(q_ref) = q_ref else {
+        let Some((q_ref, q0)) = q_ref else {
             if st.moved {
                 let r = Err(RejectReason::NotStill);
                 self.report_window(r, Condition::DecelBeforeStop, 0.0, t_now, emit);
@@ -346,18 +362,13 @@ impl Estimator {
             self.report_window(r, Condition::AccelAfterStop, 0.0, t_now, emit);
             return;
         };
-        // Start the walk at the last sample that still matched the standstill: from
-        // there the car moves. The current sample is pushed by the caller.
-        let n = self.hist.len();
-        let floor = self.index_at(st.t_rest_s);
-        let g_mean = st.mean();
-        let first = self.drive_off_start(&g_mean, floor);
-        let last_settled = self.index_at(st.seg_last_s).min(n - 1);
-        let q0 = self.carry(q_ref, last_settled, first);
+        if !settled && st.moved {
+            let r = Err(RejectReason::NotStill);
+            self.report_window(r, Condition::DecelBeforeStop, 0.0, t_now, emit);
+        }
         let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
-        let settled_at_start =
-            st.seg_n >= MIN_SETTLED_SAMPLES && self.hist.get(first).t_s - st.seg_last_s < 1.0;
+        let settled_at_start = settled && self.hist.get(first).t_s - st.seg_last_s < 1.0;
         let v0 = if settled_at_start {
             Vector3::zeros()
         } else {
