@@ -113,6 +113,34 @@ impl Estimator {
         Some(sum / k as f64)
     }
 
+    /// Forward speed at history sample `to` (before `rest`) of a car at rest at `rest`
+    /// with attitude `q_rest`, from the accelerometer integrated backwards with the
+    /// gyro-carried attitude, m/s.
+    pub(super) fn speed_before_rest(
+        &self,
+        q_rest: UnitQuaternion<f64>,
+        rest: usize,
+        to: usize,
+        g: f64,
+    ) -> f64 {
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let up = Vector3::new(0.0, 0.0, g);
+        let heading = q_rest * Vector3::x();
+        let (mut q, mut v) = (q_rest, Vector3::zeros());
+        let mut j = rest;
+        while j > to {
+            let (a, b) = (self.hist.get(j - 1), self.hist.get(j));
+            let dt = b.t_s - a.t_s;
+            let q_prev =
+                attitude::propagate(&q, &((a.gyro_rps() + b.gyro_rps()) * 0.5 - bias), -dt);
+            // v(a) = v(b) - integral of the acceleration between them.
+            v -= ((q * b.acc() - up) + (q_prev * a.acc() - up)) * (0.5 * dt);
+            q = q_prev;
+            j -= 1;
+        }
+        v.x * heading.x + v.y * heading.y
+    }
+
     /// Index of the first history sample at or after `t`.
     pub(super) fn index_at(&self, t: f64) -> usize {
         let (mut lo, mut hi) = (0, self.hist.len());

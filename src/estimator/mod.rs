@@ -73,6 +73,8 @@ pub struct Estimator {
     /// The IMU saw the car move while the wheels read zero (a creep or a drive-off in
     /// the wheel sensors' dead zone) since the last standstill began.
     imu_moved: bool,
+    /// Time (s) and mean speed (m/s) of the last wheel reading with a speed.
+    last_wheel_motion: Option<(f64, f64)>,
     /// Lever-arm fit from the rocking at stops, and the arm in use, m.
     lever_fit: LeverFit,
     lever_arm: Vector3<f64>,
@@ -116,6 +118,7 @@ impl Estimator {
             still_mean_acc: Vector3::zeros(),
             imu_moved: false,
             dead_zone_motion: None,
+            last_wheel_motion: None,
             lever_fit: LeverFit::default(),
             lever_arm: Vector3::from(cfg.lever_arm_m),
             settle_queue: std::collections::VecDeque::with_capacity(
@@ -194,6 +197,7 @@ impl Estimator {
             }
         } else {
             self.wheels_zero_since = None;
+            self.last_wheel_motion = Some((w.t_s, w.mean_kmh() / 3.6));
             if self.wheels_stopped {
                 self.wheels_stopped = false;
                 emit(Event::WheelsMoving { t_s: w.t_s });
@@ -216,6 +220,7 @@ impl Estimator {
     /// Forget the wheel speeds (input lost): no standstill is declared until they return.
     pub fn wheels_lost(&mut self) {
         self.wheels = None;
+        self.last_wheel_motion = None;
         self.wheels_zero_since = None;
         self.wheels_stopped = false;
         self.motion_unknown = true;

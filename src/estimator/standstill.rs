@@ -8,6 +8,14 @@ use super::window::{RejectReason, Step};
 use super::{Condition, Estimator, Event, ImuSample};
 use nalgebra::Vector3;
 
+/// The speed check of a new standstill looks back at most this far to the last wheel
+/// reading with a speed, s.
+const REST_CHECK_SPAN_S: f64 = 6.0;
+/// The speed the IMU says the car had at the last wheel reading with a speed may differ
+/// from that reading by this much, m/s (wheel quantisation and update interval, a
+/// body that still rocks).
+const REST_SPEED_TOL_MPS: f64 = 0.15;
+
 /// Fewest settled samples a reference is taken from.
 pub(super) const MIN_SETTLED_SAMPLES: u64 = 5;
 
@@ -89,6 +97,21 @@ impl Estimator {
             .rest_edge(&f_rest, 0)
             .max(first_quiet.saturating_sub(100))
             .min(n - 1);
+        // At rest the car lost, from the last wheel reading on, just the speed that
+        // reading showed. A rolling stop that never reached rest, taken here while it
+        // brakes or pulls away steadily, fails this by the speed it still had.
+        if let Some((t_w, v_w)) = self.last_wheel_motion {
+            let t_rest = self.hist.get(rest).t_s;
+            if t_rest > t_w && t_rest - t_w < REST_CHECK_SPAN_S && self.hist.get(0).t_s < t_w {
+                let q = attitude_from_gravity(&f_rest);
+                let g = self.gravity_mps2(&f_rest);
+                let v_at_w = q.map(|q| self.speed_before_rest(q, rest, self.index_at(t_w), g));
+                if v_at_w.is_some_and(|v| (v - v_w).abs() > REST_SPEED_TOL_MPS) {
+                    self.quiet_since = None;
+                    return;
+                }
+            }
+        }
         let moved = self.travelled_m > 0.5;
         let crept = std::mem::take(&mut self.imu_moved);
         let t_track = self.motion_start_s().max(self.hist.get(first_quiet).t_s);
@@ -343,8 +366,12 @@ impl Estimator {
         let g_mean = if settled { st.mean() } else { st.f_begin };
         let first = self.drive_off_start(&g_mean, floor);
         let q_ref = if settled {
-            attitude_from_gravity(&st.mean())
-                .map(|q| (q, self.carry(q, self.index_at(st.seg_last_s).min(n - 1), first)))
+            attitude_from_gravity(&st.mean()).map(|q| {
+                (
+                    q,
+                    self.carry(q, self.index_at(st.seg_last_s).min(n - 1), first),
+                )
+            })
         } else {
             // A stop too short to settle (a stop sign, a queue): its rest samples,
             // turned by the gyro into the body frame at drive-off, give the reference
