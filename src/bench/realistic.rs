@@ -143,7 +143,8 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         .map(|k| {
             let rolling = g.uniform() < r.rolling_stop_share;
             let v_min = pick(&mut g, r.rolling_min_mps);
-            if k > 0 && rolling && load_stop != Some(k) {
+            // The drive ends at rest: the last stop is a full one.
+            if k > 0 && k < spec.stops && rolling && load_stop != Some(k) {
                 (StopKind::Rolling, v_min)
             } else {
                 (StopKind::Full, 0.0)

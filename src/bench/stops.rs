@@ -11,8 +11,8 @@ use serde::Serialize;
 pub const GENTLE_MPS2: f64 = 0.6;
 /// A window belongs to a drive-off when it completes this soon after it, s.
 const DRIVE_OFF_WINDOW_S: f64 = 15.0;
-/// A load change counts as applied when the estimate just before drive-off is within
-/// this of the truth, deg.
+/// A load change counts as applied when the estimate's step over its stop (from the
+/// stop's start to just before drive-off) is within this of the true step, deg.
 pub const LOAD_APPLIED_TOL_DEG: f64 = 0.1;
 /// Load changes at least this large are checked, deg.
 pub const LOAD_CHECKED_DEG: f64 = 0.5;
@@ -57,6 +57,8 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
     let mut events: Vec<Event> = Vec::new();
     // Estimate just before each stop's drive-off, and the first converged time.
     let mut before_go: Vec<Option<f64>> = vec![None; plan.stops.len()];
+    let mut at_stop: Vec<Option<f64>> = vec![None; plan.stops.len()];
+    let mut next_start = 0;
     let mut valid_at: Option<f64> = None;
     let mut next_stop = 0;
     for input in drive.merged() {
@@ -70,6 +72,10 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
                 w.t_s
             }
         };
+        while next_start < plan.stops.len() && t >= plan.stops[next_start].0 {
+            at_stop[next_start] = est.estimate().map(|e| e.road_to_body_deg);
+            next_start += 1;
+        }
         while next_stop < plan.stops.len() && t >= plan.stops[next_stop].1 {
             before_go[next_stop] = est.estimate().map(|e| e.road_to_body_deg);
             next_stop += 1;
@@ -119,8 +125,12 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
                 let after = drive.truth_at(t_go).load_pitch_deg;
                 if (after - before).abs() >= LOAD_CHECKED_DEG {
                     out.load_changes += 1;
-                    let applied =
-                        before_go[k].is_some_and(|e| (e - after).abs() <= LOAD_APPLIED_TOL_DEG);
+                    let applied = match (at_stop[k], before_go[k]) {
+                        (Some(e0), Some(e1)) => {
+                            ((e1 - e0) - (after - before)).abs() <= LOAD_APPLIED_TOL_DEG
+                        }
+                        _ => false,
+                    };
                     out.load_applied += usize::from(applied);
                 }
             }

@@ -49,6 +49,12 @@ impl Estimator {
         let Some(ctx) = self.fwd_ctx.take() else {
             return;
         };
+        let r = match (r, ctx.speed_mismatch) {
+            (Ok(_), Some((imu_mps, wheel_mps))) => {
+                Err(RejectReason::SpeedMismatch { imu_mps, wheel_mps })
+            }
+            (r, _) => r,
+        };
         self.report_window(r, Condition::AccelAfterStop, ctx.imu_pitch_rad, t_now, emit);
     }
 
@@ -172,5 +178,28 @@ mod tests {
         assert!(window_weight(3.5) < 0.3);
         assert_eq!(window_weight(0.1), 1.0);
         assert_eq!(window_weight(20.0), 0.1);
+    }
+}
+
+/// The first wheel speed after a drive-off may differ from the speed the forward window
+/// integrated by this much, m/s, plus `SPEED_CHECK_SHARE` of it (tyre radius).
+const SPEED_CHECK_TOL_MPS: f64 = 0.12;
+const SPEED_CHECK_SHARE: f64 = 0.05;
+
+impl Estimator {
+    /// Compare the first wheel reading above the dead zone after a drive-off with the
+    /// speed the forward window has integrated since the walk began at rest.
+    pub(super) fn check_forward_speed(&mut self, wheel_mps: f64) {
+        if !self.fwd.is_active() {
+            return;
+        }
+        let imu_mps = self.fwd.horizontal_speed_mps();
+        let Some(ctx) = self.fwd_ctx.as_mut().filter(|c| !c.speed_checked) else {
+            return;
+        };
+        ctx.speed_checked = true;
+        if (imu_mps - wheel_mps).abs() > SPEED_CHECK_TOL_MPS + SPEED_CHECK_SHARE * wheel_mps {
+            ctx.speed_mismatch = Some((imu_mps, wheel_mps));
+        }
     }
 }

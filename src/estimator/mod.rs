@@ -198,6 +198,7 @@ impl Estimator {
         } else {
             self.wheels_zero_since = None;
             self.last_wheel_motion = Some((w.t_s, w.mean_kmh() / 3.6));
+            self.check_forward_speed(w.mean_kmh() / 3.6);
             if self.wheels_stopped {
                 self.wheels_stopped = false;
                 emit(Event::WheelsMoving { t_s: w.t_s });

@@ -51,7 +51,9 @@ impl MotionTracker {
             q: attitude_from_gravity(f_rest)?,
             v_mps: 0.0,
             t_last_s: t_s,
-            t_anchor_s: t_s,
+            // The reference a standstill begins with is taken while the body may still
+            // rock: the first settled window that agrees may anchor at once.
+            t_anchor_s: f64::NEG_INFINITY,
             gravity_mps2,
         })
     }

@@ -67,6 +67,10 @@ impl Standstill {
 #[derive(Debug, Clone, Copy)]
 pub(super) struct ForwardCtx {
     pub(super) imu_pitch_rad: f64,
+    /// The first wheel reading above the dead zone has been compared with the window's
+    /// speed; `Some` holds a mismatch (IMU, wheels, m/s).
+    pub(super) speed_checked: bool,
+    pub(super) speed_mismatch: Option<(f64, f64)>,
 }
 
 impl Estimator {
@@ -404,6 +408,8 @@ impl Estimator {
         self.fwd.start(setup, v0);
         self.fwd_ctx = Some(ForwardCtx {
             imu_pitch_rad: pitch_of(&q_ref),
+            speed_checked: false,
+            speed_mismatch: None,
         });
         for i in first..n - 1 {
             let step = self.fwd.push(&self.hist.get(i));

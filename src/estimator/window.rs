@@ -27,6 +27,10 @@ pub enum RejectReason {
     TooSlow { duration_s: f64 },
     /// IMU samples are missing inside the window.
     ImuGap { gap_s: f64 },
+    /// The first wheel speed above the dead zone after the drive-off disagrees with the
+    /// speed the window integrated: the car was not at rest where the walk began (a
+    /// rolling stop), or the reference is wrong.
+    SpeedMismatch { imu_mps: f64, wheel_mps: f64 },
     /// The vehicle was not still where the window must start.
     NotStill,
 }
@@ -149,6 +153,11 @@ impl WindowIntegrator {
 
     pub fn is_active(&self) -> bool {
         self.active
+    }
+
+    /// Horizontal speed integrated so far, m/s.
+    pub fn horizontal_speed_mps(&self) -> f64 {
+        self.v.x.hypot(self.v.y)
     }
 
     /// Feed the next sample of the walk (later in time going forward, earlier going backward).

@@ -1,0 +1,183 @@
+//! The physics of real drives that leveld must not be fooled by, each on a short drive
+//! of the realistic family with fixed seeds. Tolerances come from the measured spread
+//! of single windows (about 0.2 deg rms on these drives) over the windows involved.
+
+use leveld::bench::realistic::RealisticSpec;
+use leveld::bench::stops::{StopChecks, check};
+use leveld::bench::suite::{Case, DriveSpec};
+use leveld::estimator::{Condition, Estimate, Estimator, EstimatorConfig, Event};
+use leveld::sim::{Input, simulate};
+
+fn spec(seed: u64, stops: usize, r: RealisticSpec) -> DriveSpec {
+    let text = std::fs::read_to_string(format!(
+        "{}/scenarios/realistic/urban.toml",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .unwrap();
+    let mut s = DriveSpec::parse(&text).unwrap();
+    s.seed = seed;
+    s.stops = stops;
+    s.distance_km = Some(0.25 * stops as f64);
+    s.turn_share = 0.0;
+    s.hold_s = [8.0, 15.0];
+    s.realistic = Some(r);
+    s
+}
+
+fn valid(e: &Estimate) -> bool {
+    e.std_err_deg <= 0.06 && e.weight >= 4.0
+}
+
+fn checks(s: &DriveSpec, load: usize) -> StopChecks {
+    check(&s.cases()[load], &valid)
+}
+
+/// Every stop is left gently, the wheels read zero below 1.8 km/h.
+fn gentle() -> RealisticSpec {
+    RealisticSpec {
+        gentle_start_share: 1.0,
+        rolling_stop_share: 0.0,
+        short_stop_share: 0.0,
+        door_shock_share: 0.0,
+        imu_gap_share: 0.0,
+        ..RealisticSpec::default()
+    }
+}
+
+#[test]
+fn gentle_drive_offs_in_the_wheel_dead_zone_give_unbiased_windows() {
+    let (mut n, mut ok, mut errs) = (0, 0, Vec::new());
+    for seed in [11, 12] {
+        let c = checks(&spec(seed, 10, gentle()), 0);
+        n += c.gentle_drive_offs;
+        ok += c.gentle_accepted;
+        errs.extend(c.window_errors);
+    }
+    assert!(n >= 16, "{n} gentle drive-offs");
+    assert!(
+        ok as f64 >= 0.9 * n as f64,
+        "{ok} of {n} gentle drive-offs gave a window"
+    );
+    // Before the IMU ended the standstill, drive-off samples joined the reference and
+    // these windows sat about +0.2 deg off.
+    let mean = errs.iter().sum::<f64>() / errs.len() as f64;
+    let bound = 3.0 * 0.25 / (errs.len() as f64).sqrt();
+    assert!(
+        mean.abs() <= bound,
+        "mean window error {mean:+.3} over {} windows, bound {bound:.3}",
+        errs.len()
+    );
+}
+
+#[test]
+fn rolling_stops_give_no_window_and_no_load_change() {
+    let r = RealisticSpec {
+        rolling_stop_share: 1.0,
+        ..gentle()
+    };
+    for seed in [21, 22] {
+        let c = checks(&spec(seed, 10, r.clone()), 1);
+        assert!(c.rolling_stops >= 8, "{c:?}");
+        assert_eq!(c.rolling_with_output, 0, "{c:?}");
+    }
+}
+
+#[test]
+fn a_load_ramping_in_while_the_stop_settles_is_applied_before_drive_off() {
+    let r = RealisticSpec {
+        load_stop_short_share: 0.0,
+        ..gentle()
+    };
+    let mut applied = 0;
+    for seed in [31, 32, 33] {
+        let mut s = spec(seed, 8, r.clone());
+        s.load_change_at_stop = Some(4);
+        let c = checks(&s, 1);
+        assert_eq!(c.load_changes, 1, "{c:?}");
+        applied += c.load_applied;
+    }
+    assert_eq!(
+        applied, 3,
+        "the load change must be applied at its stop in all three drives"
+    );
+}
+
+/// Mean error of the deceleration windows of a drive whose IMU sits 0.2 m further out
+/// and 0.15 m higher than configured.
+fn decel_bias(learn: bool) -> f64 {
+    let r = RealisticSpec {
+        lever_arm_m: [2.2, 0.0, 0.45],
+        imu_mount_max_deg: [0.0; 3],
+        ..gentle()
+    };
+    let mut errs = Vec::new();
+    for seed in [41, 42] {
+        let case: Case = spec(seed, 12, r.clone()).cases().remove(0);
+        let drive = simulate(&case.scenario);
+        let cfg = EstimatorConfig {
+            learn_lever_arm: learn,
+            ..EstimatorConfig::default()
+        };
+        let mut est = Estimator::new(cfg).unwrap();
+        let mut ev = Vec::new();
+        for input in drive.merged() {
+            match input {
+                Input::Imu(s) => est.push_imu(s, &mut |e| ev.push(e)),
+                Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
+            }
+        }
+        for e in ev {
+            if let Event::WindowAccepted { window, .. } = e {
+                if window.condition == Condition::DecelBeforeStop {
+                    errs.push(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg);
+                }
+            }
+        }
+    }
+    assert!(errs.len() >= 12, "{} deceleration windows", errs.len());
+    errs.iter().sum::<f64>() / errs.len() as f64
+}
+
+#[test]
+fn the_lever_arm_learnt_from_rocking_removes_the_bias_of_a_misconfigured_one() {
+    let (learnt, fixed) = (decel_bias(true), decel_bias(false));
+    assert!(
+        fixed.abs() > 0.1,
+        "a 10 % longer arm must show without learning: {fixed:+.3}"
+    );
+    assert!(
+        learnt.abs() < 0.06,
+        "learnt {learnt:+.3}, fixed {fixed:+.3}"
+    );
+}
+
+#[test]
+fn realistic_urban_drives_converge_and_stay_close() {
+    // The full family runs in `leveld bench accuracy --scenarios scenarios/realistic/*.toml`.
+    let text = std::fs::read_to_string(format!(
+        "{}/scenarios/realistic/urban.toml",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .unwrap();
+    let mut s = DriveSpec::parse(&text).unwrap();
+    s.stops = 12;
+    s.distance_km = Some(4.5);
+    s.load_change_at_stop = Some(5);
+    for seed in [101, 102] {
+        s.seed = seed;
+        for case in s.cases() {
+            let rows = leveld::bench::accuracy::run_case(&case, &leveld::bench::accuracy::methods);
+            let r = rows.iter().find(|r| r.method == "leveld").unwrap();
+            assert!(
+                r.time_to_valid_s.is_some(),
+                "{} seed {seed}: never valid",
+                case.load
+            );
+            assert!(
+                r.mean_abs_err_deg <= 0.12,
+                "{} seed {seed}: {r:?}",
+                case.load
+            );
+        }
+    }
+}
