@@ -151,8 +151,11 @@ fn the_lever_arm_learnt_from_rocking_removes_the_bias_of_a_misconfigured_one() {
     );
 }
 
+/// A whole realistic urban drive (16 stops, a load change at the 6th in the 5P case):
+/// the estimate at the end is inside the 0.2 deg R48 budget, and leveld is more than
+/// twice as close to the truth as the Kasaba-style baseline over the drive.
 #[test]
-fn realistic_urban_drives_converge_and_stay_close() {
+fn realistic_urban_drives_end_inside_the_budget_and_beat_the_baseline() {
     // The full family runs in `leveld bench accuracy --scenarios scenarios/realistic/*.toml`.
     let text = std::fs::read_to_string(format!(
         "{}/scenarios/realistic/urban.toml",
@@ -160,24 +163,66 @@ fn realistic_urban_drives_converge_and_stay_close() {
     ))
     .unwrap();
     let mut s = DriveSpec::parse(&text).unwrap();
-    s.stops = 12;
-    s.distance_km = Some(4.5);
-    s.load_change_at_stop = Some(5);
-    for seed in [101, 102] {
-        s.seed = seed;
-        for case in s.cases() {
-            let rows = leveld::bench::accuracy::run_case(&case, &leveld::bench::accuracy::methods);
-            let r = rows.iter().find(|r| r.method == "leveld").unwrap();
-            assert!(
-                r.time_to_valid_s.is_some(),
-                "{} seed {seed}: never valid",
-                case.load
-            );
-            assert!(
-                r.mean_abs_err_deg <= 0.12,
-                "{} seed {seed}: {r:?}",
-                case.load
-            );
-        }
+    let cases: Vec<_> = [101, 102]
+        .into_iter()
+        .flat_map(|seed| {
+            s.seed = seed;
+            s.cases()
+        })
+        .collect();
+    let rows: Vec<Vec<leveld::bench::accuracy::Row>> = std::thread::scope(|sc| {
+        let hs: Vec<_> = cases
+            .iter()
+            .map(|c| {
+                sc.spawn(|| leveld::bench::accuracy::run_case(c, &leveld::bench::accuracy::methods))
+            })
+            .collect();
+        hs.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let (mut ours, mut theirs) = (0.0, 0.0);
+    for (case, rows) in cases.iter().zip(&rows) {
+        let seed = case.seed;
+        let row = |m: &str| rows.iter().find(|r| r.method == m).unwrap();
+        let r = row("leveld");
+        let &(_, est, truth) = r
+            .track
+            .iter()
+            .rev()
+            .find(|x| x.1.is_finite())
+            .expect("an estimate by the end of the drive");
+        eprintln!(
+            "{} seed {seed}: final {:+.3}, mean abs {:.3}, kasaba {:.3}",
+            case.load,
+            est - truth,
+            r.mean_abs_err_deg,
+            row("kasaba").mean_abs_err_deg
+        );
+        assert!(
+            (est - truth).abs() <= 0.2,
+            "{} seed {seed}: final estimate {est:.3} vs truth {truth:.3}",
+            case.load
+        );
+        ours += track_abs_err(&r.track);
+        theirs += track_abs_err(&row("kasaba").track);
     }
+    assert!(
+        2.0 * ours < theirs,
+        "mean abs error over the drives: leveld {ours:.3}, kasaba {theirs:.3}"
+    );
+}
+
+/// Mean |estimate - truth| over the second half of a drive (every method has an
+/// estimate by then), deg.
+fn track_abs_err(track: &[(f64, f64, f64)]) -> f64 {
+    let half = &track[track.len() / 2..];
+    let e: Vec<f64> = half
+        .iter()
+        .filter(|x| x.1.is_finite())
+        .map(|x| (x.1 - x.2).abs())
+        .collect();
+    assert!(
+        e.len() * 2 > half.len(),
+        "estimate missing over half the second half"
+    );
+    e.iter().sum::<f64>() / e.len() as f64
 }

@@ -59,6 +59,18 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         shift_windows: 0,
         ..d()
     };
+    let no_learn = EstimatorConfig {
+        learn_lever_arm: false,
+        ..d()
+    };
+    let equal_weights = EstimatorConfig {
+        weight_windows: false,
+        ..d()
+    };
+    let no_imu_drive_off = EstimatorConfig {
+        drive_off_speed_mps: 1e3,
+        ..d()
+    };
     let paper = EstimatorConfig {
         shift_windows: 0,
         averaging: Averaging::Mean,
@@ -67,6 +79,9 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         max_lateral_acc_mps2: 1e3,
         chord_check_extra_m: 0.0,
         load_change_deg: 90.0,
+        learn_lever_arm: false,
+        weight_windows: false,
+        drive_off_speed_mps: 1e3,
         ..d()
     };
     vec![
@@ -83,6 +98,9 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_ext, "no-extended-chord")),
         Box::new(Leveld::new(no_load, "no-load-step")),
         Box::new(Leveld::new(no_shift, "no-shift-check")),
+        Box::new(Leveld::new(no_learn, "no-lever-learning")),
+        Box::new(Leveld::new(equal_weights, "equal-weights")),
+        Box::new(Leveld::new(no_imu_drive_off, "no-imu-drive-off")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }
