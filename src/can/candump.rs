@@ -2,8 +2,11 @@
 //!
 //! Accepted: `(sec.frac) iface ID#DATA` with any number of fraction digits, padded
 //! interface names, `ID#R`, `ID#R<len>`, `ID##<flags><data>` (CAN FD), `_<dlc>` after
-//! classic data, a trailing ` R`/` T` direction, comments (`#` / `;`), blank lines and
-//! DROPCOUNT lines. Parsing does not allocate.
+//! classic data, a trailing ` R`/` T` direction, error frames (`candump -e`: an
+//! 8-digit ID with the error flag 0x20000000), comments (`#` / `;`), blank lines and
+//! DROPCOUNT lines. Nothing else: IDs and lengths are exactly the digits candump
+//! writes. Lines are read as bytes, at most [`MAX_LINE_BYTES`] of them; parsing does
+//! not allocate.
 
 use std::fmt;
 
@@ -17,8 +20,73 @@ pub struct LogFrame {
     pub extended: bool,
     pub remote: bool,
     pub fd: bool,
+    /// An error frame: `id` holds the error class bits (linux/can/error.h).
+    pub error: bool,
     pub len: u8,
     pub data: [u8; 64],
+}
+
+/// Longest line read, bytes. A CAN FD line with a 16-byte interface name and a
+/// 20-digit timestamp is under 200; the rest of a longer line is skipped unread.
+pub const MAX_LINE_BYTES: usize = 4096;
+
+/// Error flag of an error frame's CAN ID.
+pub const CAN_ERR_FLAG: u32 = 0x2000_0000;
+
+/// Timestamps at or above this are refused, s (about the year 5000; a log clock this
+/// far off is corrupt, and f64 keeps microseconds only below 2^33 s).
+pub const MAX_TIMESTAMP_S: f64 = 1e11;
+
+/// What [`read_line`] read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadLine {
+    /// A line of at most `MAX_LINE_BYTES` (its newline removed) is in the buffer.
+    Line,
+    /// The line was longer; its first `MAX_LINE_BYTES` are in the buffer.
+    TooLong,
+    Eof,
+}
+
+/// Read one line into `buf` as bytes, whatever they are, keeping at most
+/// `MAX_LINE_BYTES` of it: memory stays bounded on any input.
+pub fn read_line(input: &mut dyn std::io::BufRead, buf: &mut Vec<u8>) -> std::io::Result<ReadLine> {
+    buf.clear();
+    let mut any = false;
+    let mut too_long = false;
+    loop {
+        let chunk = match input.fill_buf() {
+            Ok(c) => c,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        if chunk.is_empty() {
+            break;
+        }
+        any = true;
+        let (take, done) = match chunk.iter().position(|&b| b == b'\n') {
+            Some(i) => (i, true),
+            None => (chunk.len(), false),
+        };
+        let room = MAX_LINE_BYTES.saturating_sub(buf.len());
+        if take > room {
+            too_long = true;
+        }
+        buf.extend_from_slice(&chunk[..take.min(room)]);
+        input.consume(if done { take + 1 } else { take });
+        if done {
+            break;
+        }
+    }
+    Ok(match (any, too_long) {
+        (false, _) => ReadLine::Eof,
+        (true, true) => ReadLine::TooLong,
+        (true, false) => ReadLine::Line,
+    })
+}
+
+/// Parse one line read as bytes: text that is not UTF-8 is a malformed line.
+pub fn parse_bytes(line: &[u8]) -> Result<Line, ParseError> {
+    parse_line(std::str::from_utf8(line).map_err(|_| ParseError::NotText)?)
 }
 
 impl LogFrame {
@@ -38,6 +106,7 @@ impl LogFrame {
             extended,
             remote: false,
             fd: false,
+            error: false,
             len: payload.len().min(64) as u8,
             data: [0; 64],
         };
@@ -114,6 +183,10 @@ pub enum ParseError {
     Payload,
     #[error("unknown text after the frame (expected nothing, ' R' or ' T')")]
     Trailing,
+    #[error("line is not UTF-8 text")]
+    NotText,
+    #[error("line longer than 4096 bytes")]
+    TooLong,
 }
 
 fn hex_nibble(c: u8) -> Option<u8> {
@@ -141,6 +214,9 @@ pub fn parse_line(line: &str) -> Result<Line, ParseError> {
         return Err(ParseError::Timestamp);
     }
     let t_s: f64 = ts.parse().map_err(|_| ParseError::Timestamp)?;
+    if !(t_s < MAX_TIMESTAMP_S) {
+        return Err(ParseError::Timestamp);
+    }
     let rest = rest[close + 1..].trim_start();
     let sp = rest
         .find(char::is_whitespace)
@@ -164,11 +240,17 @@ pub fn parse_line(line: &str) -> Result<Line, ParseError> {
         8 => true,
         _ => return Err(ParseError::Id),
     };
-    let id = u32::from_str_radix(id_s, 16).map_err(|_| ParseError::Id)?;
-    if (!extended && id > 0x7FF) || id > 0x1FFF_FFFF {
+    if !id_s.bytes().all(|b| b.is_ascii_hexdigit()) {
         return Err(ParseError::Id);
     }
-    let mut f = LogFrame::new(t_s, iface, id, extended, &[]);
+    let id = u32::from_str_radix(id_s, 16).map_err(|_| ParseError::Id)?;
+    // An error frame: 8 digits with the error flag, the class bits below it.
+    let error = extended && id & !0x1FFF_FFFF == CAN_ERR_FLAG;
+    if (!extended && id > 0x7FF) || (id > 0x1FFF_FFFF && !error) {
+        return Err(ParseError::Id);
+    }
+    let mut f = LogFrame::new(t_s, iface, id & 0x1FFF_FFFF, extended, &[]);
+    f.error = error;
     let mut body = &field[hash + 1..];
     if let Some(fd_body) = body.strip_prefix('#') {
         // CAN FD: one hex digit of flags, then data.
@@ -177,13 +259,15 @@ pub fn parse_line(line: &str) -> Result<Line, ParseError> {
         f.fd = true;
         body = &fd_body[1..];
     } else if let Some(r) = body.strip_prefix(['R', 'r']) {
+        if f.error {
+            return Err(ParseError::Payload);
+        }
         f.remote = true;
-        if !r.is_empty() {
-            let n: u8 = r.parse().map_err(|_| ParseError::Payload)?;
-            if n > 8 {
-                return Err(ParseError::Payload);
-            }
-            f.len = n;
+        // `R` alone or with the one DLC digit candump writes.
+        match r.as_bytes() {
+            [] => {}
+            [d @ b'0'..=b'8'] => f.len = d - b'0',
+            _ => return Err(ParseError::Payload),
         }
         return Ok(Line::Frame(f));
     }
@@ -225,7 +309,9 @@ impl fmt::Display for CandumpLine<'_> {
             micros.rem_euclid(1_000_000),
             f.iface()
         )?;
-        if f.extended {
+        if f.error {
+            write!(out, "{:08X}#", f.id | CAN_ERR_FLAG)?
+        } else if f.extended {
             write!(out, "{:08X}#", f.id)?
         } else {
             write!(out, "{:03X}#", f.id)?
@@ -294,6 +380,48 @@ mod tests {
         );
         assert_eq!(parse_line("(1.5) can0 123#zz"), Err(ParseError::Payload));
         assert_eq!(parse_line("(1.5) can0 123#00 X"), Err(ParseError::Trailing));
+        // What candump never writes.
+        assert_eq!(parse_line("(1.5) can0 +86#00"), Err(ParseError::Id));
+        assert_eq!(parse_line("(1.5) can0 +0000386#00"), Err(ParseError::Id));
+        assert_eq!(parse_line("(1.5) can0 123#R+5"), Err(ParseError::Payload));
+        assert_eq!(parse_line("(1.5) can0 123#R08"), Err(ParseError::Payload));
+        assert_eq!(parse_line("(1.5) can0 123#R9"), Err(ParseError::Payload));
+        assert_eq!(parse_line("(1e3) can0 123#00"), Err(ParseError::Timestamp));
+        assert_eq!(
+            parse_line("(1125899906842624.0) can0 3E0#00"),
+            Err(ParseError::Timestamp)
+        );
+        assert_eq!(
+            parse_bytes(b"(1.0) can0 3E0#D5\xff"),
+            Err(ParseError::NotText)
+        );
+    }
+
+    #[test]
+    fn error_frames_as_candump_e_writes_them() {
+        let f = frame("(1.5) can0 20000040#0000000000000000");
+        assert!(f.error && f.extended);
+        assert_eq!(f.id, 0x40);
+        assert_eq!(
+            CandumpLine(&f).to_string(),
+            "(1.500000) can0 20000040#0000000000000000"
+        );
+        assert_eq!(parse_line("(1.5) can0 40000040#00"), Err(ParseError::Id));
+    }
+
+    #[test]
+    fn lines_are_read_as_bounded_bytes() {
+        let mut long = vec![b'x'; 3 * MAX_LINE_BYTES];
+        long.extend_from_slice(b"\n(1.0) can0 3E0#\xff\n(2.0) can0 3E0#00");
+        let mut r = std::io::BufReader::with_capacity(64, &long[..]);
+        let mut buf = Vec::new();
+        assert_eq!(read_line(&mut r, &mut buf).unwrap(), ReadLine::TooLong);
+        assert_eq!(buf.len(), MAX_LINE_BYTES);
+        assert_eq!(read_line(&mut r, &mut buf).unwrap(), ReadLine::Line);
+        assert_eq!(parse_bytes(&buf), Err(ParseError::NotText));
+        assert_eq!(read_line(&mut r, &mut buf).unwrap(), ReadLine::Line);
+        assert!(matches!(parse_bytes(&buf), Ok(Line::Frame(_))));
+        assert_eq!(read_line(&mut r, &mut buf).unwrap(), ReadLine::Eof);
     }
 
     #[test]
