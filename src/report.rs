@@ -338,6 +338,7 @@ pub fn calibrate(
 ) -> Result<i32> {
     use crate::daemon::{calibrate, pipeline::Pipeline};
     use anyhow::{Context, bail};
+    calibrate::check_duration(duration_s)?;
     let (cfg, db, _) = crate::daemon::load(config)?;
     let mut p = Pipeline::new(&cfg, &db)?;
     let cal = match log {

@@ -7,7 +7,7 @@
 
 use super::pipeline::{Notice, Pipeline, Sink};
 use super::state::{self, Loaded, PersistedState};
-use crate::can::candump::{Line, parse_line};
+use crate::can::candump::{Line, ReadLine, parse_bytes, read_line};
 use crate::estimator::Event;
 use anyhow::{Context, Result, bail};
 use std::io::BufRead;
@@ -29,6 +29,14 @@ pub struct Calibration {
     pub settled_s: f64,
 }
 
+/// The standstill a calibration needs must be a real one: 1 s to 1 h.
+pub fn check_duration(duration_s: f64) -> Result<()> {
+    if !(1.0..=3600.0).contains(&duration_s) {
+        bail!("--duration {duration_s}: choose 1..3600 s of standstill (30 s is typical)");
+    }
+    Ok(())
+}
+
 /// Feed a log until the standstill has settled for `duration_s`.
 pub fn from_log(
     p: &mut Pipeline,
@@ -36,10 +44,16 @@ pub fn from_log(
     interface: Option<&str>,
     duration_s: f64,
 ) -> Result<Calibration> {
-    let mut line = String::new();
+    check_duration(duration_s)?;
+    let mut line = Vec::with_capacity(256);
     let mut best: Option<Calibration> = None;
-    while input.read_line(&mut line).context("reading the log")? > 0 {
-        if let Ok(Line::Frame(f)) = parse_line(&line) {
+    loop {
+        match read_line(input, &mut line).context("reading the log")? {
+            ReadLine::Eof => break,
+            ReadLine::TooLong => continue,
+            ReadLine::Line => {}
+        }
+        if let Ok(Line::Frame(f)) = parse_bytes(&line) {
             if interface.is_none_or(|i| i == f.iface()) && !f.fd {
                 p.on_can_frame(f.t_s, &f, &mut Quiet);
                 if let Some((pitch, settled)) = p.est.standstill_pitch() {
@@ -54,7 +68,6 @@ pub fn from_log(
                 }
             }
         }
-        line.clear();
     }
     match best {
         Some(c) => bail!(

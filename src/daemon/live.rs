@@ -8,6 +8,10 @@
 use super::pipeline::{Notice, Pipeline, Sink};
 use super::state::{self, Loaded, PersistedState};
 use super::{ConfigSource, load};
+use crate::can::{
+    CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_CRTL_RX_PASSIVE, CAN_ERR_CRTL_TX_PASSIVE,
+    CAN_ERR_RESTARTED,
+};
 use crate::estimator::Event;
 use anyhow::{Context, Result};
 use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
@@ -16,19 +20,60 @@ use socketcan::tokio::CanSocket;
 use socketcan::{CanFilter, CanFrame, SocketOptions};
 use std::path::Path;
 use std::pin::Pin;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime};
 
-const CAN_ERR_CRTL: u32 = 0x0000_0004;
-const CAN_ERR_BUSOFF: u32 = 0x0000_0040;
-const CAN_ERR_RESTARTED: u32 = 0x0000_0100;
-const CAN_ERR_CRTL_RX_PASSIVE: u8 = 0x10;
-const CAN_ERR_CRTL_TX_PASSIVE: u8 = 0x20;
 /// Clock hold-back of the idle timer, s.
 const HOLD_BACK_S: f64 = 0.02;
 
-fn secs(t: SystemTime) -> f64 {
-    t.duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
+/// A kernel timestamp older than this when read is not believed (the wall clock
+/// stepped in between): the frame is taken as received now, s.
+const MAX_FRAME_AGE_S: f64 = 1.0;
+
+/// Shortest watchdog petting interval: a WATCHDOG_USEC below twice this cannot be
+/// served by a frame loop and is served at this rate instead.
+const MIN_WATCHDOG_PET: Duration = Duration::from_millis(20);
+
+/// Pipeline time of a live run: CLOCK_MONOTONIC since start, s. The kernel stamps
+/// frames with the wall clock, which GNSS, NTP or a user may step at any moment; only
+/// a frame's age (wall now minus its stamp) is taken from it, so a step of the wall
+/// clock changes neither the output period nor the estimate.
+struct MonoClock {
+    start: Instant,
+}
+
+impl MonoClock {
+    fn new() -> Self {
+        Self {
+            start: Instant::now(),
+        }
+    }
+
+    fn now_s(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+
+    fn frame_s(&self, stamp: SystemTime) -> f64 {
+        let now = self.now_s();
+        match SystemTime::now().duration_since(stamp) {
+            Ok(age) if age.as_secs_f64() <= MAX_FRAME_AGE_S => (now - age.as_secs_f64()).max(0.0),
+            _ => now,
+        }
+    }
+}
+
+/// Petting interval for the watchdog timeout systemd asked for.
+fn watchdog_pet(timeout: Option<Duration>) -> Duration {
+    match timeout {
+        Some(d) if d / 2 >= MIN_WATCHDOG_PET => d / 2,
+        Some(d) => {
+            tracing::warn!(
+                ?d,
+                "watchdog timeout too short to serve; petting every {MIN_WATCHDOG_PET:?}"
+            );
+            MIN_WATCHDOG_PET
+        }
+        None => Duration::from_secs(3600),
+    }
 }
 
 /// Counters of the live loop.
@@ -233,7 +278,8 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
     let mut tick = tokio::time::interval(Duration::from_millis(10));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let wd = sd_notify::watchdog_enabled();
-    let mut watchdog = tokio::time::interval(wd.map_or(Duration::from_secs(3600), |d| d / 2));
+    let mut watchdog = tokio::time::interval(watchdog_pet(wd));
+    let clock = MonoClock::new();
     let mut status_every = tokio::time::interval(Duration::from_secs(5));
     let mut backoff = Duration::from_millis(100);
     let mut ready_sent = false;
@@ -264,7 +310,7 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                         _ = &mut deadline => break,
                         _ = tick.tick() => {
                             let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
-                            p.tick(secs(SystemTime::now()) - HOLD_BACK_S, &mut sink);
+                            p.tick(clock.now_s() - HOLD_BACK_S, &mut sink);
                         }
                         _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
                         _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats),
@@ -280,7 +326,6 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
             notify(&[sd_notify::NotifyState::Ready]);
             ready_sent = true;
         }
-        let mut bus_off = false;
         let reason = loop {
             tokio::select! {
                 item = frames.next() => {
@@ -288,24 +333,18 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                     match r {
                         Ok((CanFrame::Data(f), ts)) => {
                             let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                            p.on_can_frame_from(source as u32, secs(ts), &f, &mut sink);
+                            p.on_can_frame_from(source as u32, clock.frame_s(ts), &f, &mut sink);
                             if sink.lost_output { break "output socket failed".to_string() }
                         }
                         Ok((CanFrame::Remote(_), _)) => {}
-                        Ok((CanFrame::Error(e), _)) => {
+                        Ok((CanFrame::Error(e), ts)) => {
                             let bits = e.error_bits();
                             let d = e.data();
                             if bits & CAN_ERR_BUSOFF != 0 {
                                 stats.bus_off += 1;
-                                bus_off = true;
-                                p.set_fault(true);
-                                tracing::error!("bus off: status FAULT until the controller restarts");
                             }
-                            if bits & CAN_ERR_RESTARTED != 0 && bus_off {
-                                bus_off = false;
-                                p.set_fault(false);
-                                tracing::info!("controller restarted after bus off");
-                            }
+                            let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
+                            p.on_error_frame(clock.frame_s(ts), bits, &mut sink);
                             if bits & CAN_ERR_CRTL != 0 && d.len() > 1 && d[1] & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE) != 0 {
                                 stats.error_passive += 1;
                                 tracing::warn!("controller error-passive");
@@ -322,7 +361,7 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                 }
                 _ = tick.tick() => {
                     let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                    p.tick(secs(SystemTime::now()) - HOLD_BACK_S, &mut sink);
+                    p.tick(clock.now_s() - HOLD_BACK_S, &mut sink);
                     if sink.lost_output { break "output socket failed".to_string() }
                 }
                 _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
@@ -407,6 +446,7 @@ pub fn calibrate_live(
         let ids = p.input_ids();
         let (mut frames, _out) = open_all(cfg, &ids).context("opening CAN for calibration")?;
         let mut stats = LiveStats::default();
+        let clock = MonoClock::new();
         let limit = tokio::time::sleep(Duration::from_secs_f64(duration_s + 30.0));
         tokio::pin!(limit);
         let mut best = None;
@@ -416,7 +456,7 @@ pub fn calibrate_live(
                     let Some((source, r)) = item else { anyhow::bail!("CAN input ended") };
                     if let Ok((CanFrame::Data(f), ts)) = r {
                         let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
-                        p.on_can_frame_from(source as u32, secs(ts), &f, &mut sink);
+                        p.on_can_frame_from(source as u32, clock.frame_s(ts), &f, &mut sink);
                         if let Some((pitch, settled)) = p.est.standstill_pitch() {
                             best = Some(settled);
                             if settled >= duration_s {

@@ -2,6 +2,7 @@
 //! replays, persisted state.
 
 pub mod calibrate;
+pub mod clock;
 pub mod config;
 pub mod live;
 pub mod pipeline;

@@ -68,6 +68,24 @@ pub enum Notice {
         message: &'static str,
         reason: &'static str,
     },
+    /// A frame timestamp jumped by `step_s` (forward past the allowed gap, or back):
+    /// time goes on from `t_s`; the open standstill and the input timeouts restart.
+    ClockStep {
+        t_s: f64,
+        step_s: f64,
+    },
+    /// Bus-off: FAULT until the controller reports its restart.
+    BusOff {
+        t_s: f64,
+    },
+    BusRestarted {
+        t_s: f64,
+    },
+    /// Events of one frame beyond what the pipeline buffers; they were not reported.
+    EventsDropped {
+        t_s: f64,
+        count: u32,
+    },
 }
 
 /// Receiver of what the pipeline produces.
@@ -335,6 +353,8 @@ pub struct Pipeline {
     reference_pitch_deg: f64,
     fault: bool,
     clock_s: Option<f64>,
+    frame_clock: super::clock::FrameClock,
+    bus_off: bool,
     start_s: f64,
     next_due_s: Option<f64>,
     out_counter: u8,
@@ -382,6 +402,8 @@ impl Pipeline {
             reference_pitch_deg: cfg.leveling.reference_pitch_deg,
             fault: false,
             clock_s: None,
+            frame_clock: super::clock::FrameClock::new(cfg.leveling.max_clock_step_s),
+            bus_off: false,
             start_s: 0.0,
             next_due_s: None,
             out_counter: 0,
@@ -429,6 +451,60 @@ impl Pipeline {
     /// Restore persisted estimator state.
     pub fn restore(&mut self, st: &EstimatorState) -> Result<(), crate::estimator::StateError> {
         self.est.restore(st)
+    }
+
+    /// Clock steps seen in the frame timestamps.
+    pub fn clock_steps(&self) -> u64 {
+        self.frame_clock.steps
+    }
+
+    /// Map a frame timestamp onto the pipeline clock; on a step, restart what spans
+    /// time. `None`: the timestamp is unusable and the frame is dropped.
+    fn frame_time(&mut self, t_frame_s: f64, sink: &mut dyn Sink) -> Option<f64> {
+        match self.frame_clock.map(t_frame_s) {
+            super::clock::Mapped::Time(t) => Some(t),
+            super::clock::Mapped::Invalid => None,
+            super::clock::Mapped::Step { t_s, step_s } => {
+                sink.notice(&Notice::ClockStep { t_s, step_s });
+                // What was measured before the step cannot be joined to what comes
+                // after: the car may have moved meanwhile.
+                self.est.wheels_lost();
+                self.half = [None; 2];
+                for s in &mut self.st {
+                    if s.last_good_s.is_some() {
+                        s.last_good_s = Some(t_s);
+                    }
+                }
+                Some(t_s)
+            }
+        }
+    }
+
+    /// A frame that is not an input (CAN FD, say): time passes, it is counted as ignored.
+    pub fn on_other_frame(&mut self, t_frame_s: f64, sink: &mut dyn Sink) {
+        if let Some(t) = self.frame_time(t_frame_s, sink) {
+            self.tick(t, sink);
+        }
+        self.ignored_frames += 1;
+    }
+
+    /// An error frame (class bits and data of linux/can/error.h), from a socket or a
+    /// `candump -e` log: bus-off sets FAULT until the controller reports its restart.
+    pub fn on_error_frame(&mut self, t_frame_s: f64, class: u32, sink: &mut dyn Sink) {
+        let Some(t_s) = self.frame_time(t_frame_s, sink) else {
+            return;
+        };
+        self.tick(t_s, sink);
+        if class & crate::can::CAN_ERR_BUSOFF != 0 && !self.bus_off {
+            self.bus_off = true;
+            self.fault = true;
+            sink.notice(&Notice::BusOff { t_s });
+        }
+        if class & crate::can::CAN_ERR_RESTARTED != 0 && self.bus_off {
+            self.bus_off = false;
+            self.fault = false;
+            sink.notice(&Notice::BusRestarted { t_s });
+        }
     }
 
     /// Current status as sent.
@@ -496,21 +572,26 @@ impl Pipeline {
         if t_s < prev {
             return;
         }
-        // Periodic frames due up to now, sent with the state as it was then.
+        // Periodic frames due up to now, sent with the state as it was then; at most a
+        // few at once, then realigned (a gap in the frames is not flooded afterwards).
         let period = self.out.period_s;
+        let mut sent = 0;
         while let Some(due) = self.next_due_s {
             if due > t_s {
                 break;
             }
             self.check_timeouts(due, sink);
             self.send(due, sink);
+            sent += 1;
             let next = due + period;
-            // A jump in the log clock: send once and realign rather than flood.
-            self.next_due_s = Some(if t_s - next > 10.0 * period {
+            self.next_due_s = Some(if t_s - next > 10.0 * period || sent >= 11 || next <= due {
                 t_s + period
             } else {
                 next
             });
+            if sent >= 11 || next <= due {
+                break;
+            }
         }
         self.check_timeouts(t_s, sink);
         self.clock_s = Some(t_s);
@@ -588,7 +669,9 @@ impl Pipeline {
         sink: &mut dyn Sink,
     ) {
         if f.is_remote_frame() {
-            self.tick(t_s, sink);
+            if let Some(t) = self.frame_time(t_s, sink) {
+                self.tick(t, sink);
+            }
             self.ignored_frames += 1;
             return;
         }
@@ -620,6 +703,10 @@ impl Pipeline {
         data: &[u8],
         sink: &mut dyn Sink,
     ) {
+        let Some(t_s) = self.frame_time(t_s, sink) else {
+            self.ignored_frames += 1;
+            return;
+        };
         self.tick(t_s, sink);
         let Some(slot) =
             (0..3).find(|&i| self.inputs[i].id == id && self.inputs[i].extended == extended)
@@ -683,6 +770,12 @@ impl Pipeline {
     }
 
     fn handle_events(&mut self, buf: &EventBuf, t_s: f64, sink: &mut dyn Sink) {
+        if buf.dropped > 0 {
+            sink.notice(&Notice::EventsDropped {
+                t_s,
+                count: buf.dropped,
+            });
+        }
         let mut changed = false;
         for e in buf.iter() {
             match e {
@@ -714,11 +807,13 @@ impl Pipeline {
     }
 }
 
-/// A few events without allocating.
+/// The events of one frame without allocating (one frame gives at most a few); any
+/// beyond its capacity are counted and reported as a notice.
 #[derive(Default)]
 struct EventBuf {
-    ev: [Option<Event>; 8],
+    ev: [Option<Event>; 16],
     n: usize,
+    dropped: u32,
 }
 
 impl EventBuf {
@@ -726,6 +821,8 @@ impl EventBuf {
         if self.n < self.ev.len() {
             self.ev[self.n] = Some(e);
             self.n += 1;
+        } else {
+            self.dropped = self.dropped.saturating_add(1);
         }
     }
     fn iter(&self) -> impl Iterator<Item = &Event> {

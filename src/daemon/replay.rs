@@ -1,7 +1,9 @@
 //! `leveld replay`: the pipeline run over a candump log, with log stamps as time.
 
 use super::pipeline::{ACC, GYR, MsgStats, Notice, Pipeline, Sink, WHEELS};
-use crate::can::candump::{CandumpLine, Line, LogFrame, parse_line};
+use crate::can::candump::{
+    CandumpLine, Line, LogFrame, ParseError, ReadLine, parse_bytes, read_line,
+};
 use crate::estimator::Event;
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
@@ -47,6 +49,8 @@ pub struct Summary {
     /// Line numbers of the first malformed lines (at most 20).
     pub malformed_examples: Vec<u64>,
     pub ignored_frames: u64,
+    /// Timestamps that jumped back or further ahead than `leveling.max_clock_step_s`.
+    pub clock_steps: u64,
     pub messages: std::collections::BTreeMap<String, MsgStats>,
     pub estimates_accepted: u64,
     pub estimates_rejected: u64,
@@ -111,6 +115,21 @@ impl Sink for ReplaySink<'_> {
                         "{t_s:12.3}  input invalid     {message}: repeated {reason} failures"
                     )
                 }
+                Notice::ClockStep { t_s, step_s } => writeln!(
+                    self.events,
+                    "{t_s:12.3}  clock step        {step_s:+.3} s in the frame timestamps: time goes on from here"
+                ),
+                Notice::BusOff { t_s } => writeln!(
+                    self.events,
+                    "{t_s:12.3}  bus off           FAULT until the controller restarts"
+                ),
+                Notice::BusRestarted { t_s } => {
+                    writeln!(self.events, "{t_s:12.3}  bus restarted")
+                }
+                Notice::EventsDropped { t_s, count } => writeln!(
+                    self.events,
+                    "{t_s:12.3}  events dropped    {count} events of one frame not reported"
+                ),
             }
         };
         self.keep(r);
@@ -142,49 +161,48 @@ pub fn replay<'a>(
         iface: &opts.output_interface,
         err: None,
     };
-    let mut line = String::new();
+    let mut line = Vec::with_capacity(256);
     let (mut lineno, mut nframes, mut malformed) = (0u64, 0u64, 0u64);
     let mut examples = Vec::new();
-    // Interfaces in order of appearance; their index is the frame's source.
-    let mut ifaces: Vec<String> = Vec::new();
+    let mut ifaces = Interfaces::default();
     loop {
-        line.clear();
-        if input
-            .read_line(&mut line)
-            .context("reading the input log")?
-            == 0
-        {
+        let read = read_line(input, &mut line).context("reading the input log")?;
+        if read == ReadLine::Eof {
             break;
         }
         lineno += 1;
-        match parse_line(&line) {
+        let parsed = if read == ReadLine::TooLong {
+            Err(ParseError::TooLong)
+        } else {
+            parse_bytes(&line)
+        };
+        match parsed {
             Ok(Line::Skip) => {}
             Ok(Line::Frame(f)) => {
                 if opts.interface.as_deref().is_some_and(|i| i != f.iface()) {
                     continue;
                 }
                 nframes += 1;
-                if f.fd {
-                    // CAN FD frames are not among the inputs.
-                    p.tick(f.t_s, &mut sink);
-                    p.ignored_frames += 1;
+                if f.error {
+                    p.on_error_frame(f.t_s, f.id, &mut sink);
                     continue;
                 }
-                let source = match ifaces.iter().position(|i| i == f.iface()) {
-                    Some(i) => i,
-                    None => {
-                        ifaces.push(f.iface().to_string());
-                        ifaces.len() - 1
-                    }
-                };
-                p.on_can_frame_from(source as u32, f.t_s, &f, &mut sink);
+                if f.fd {
+                    // CAN FD frames are not among the inputs.
+                    p.on_other_frame(f.t_s, &mut sink);
+                    continue;
+                }
+                match ifaces.index(f.iface()) {
+                    Some(source) => p.on_can_frame_from(source, f.t_s, &f, &mut sink),
+                    None => p.on_other_frame(f.t_s, &mut sink),
+                }
             }
             Err(e) => {
                 malformed += 1;
                 if opts.strict {
                     bail!(
                         "line {lineno}: {e}: {:?} (drop --strict to skip malformed lines)",
-                        line.trim_end()
+                        String::from_utf8_lossy(&line).trim_end()
                     );
                 }
                 if examples.len() < 20 {
@@ -213,6 +231,7 @@ pub fn replay<'a>(
         malformed_lines: malformed,
         malformed_examples: examples,
         ignored_frames: p.ignored_frames,
+        clock_steps: p.clock_steps(),
         messages,
         estimates_accepted: p.windows_accepted,
         estimates_rejected: p.windows_rejected,
@@ -226,6 +245,37 @@ pub fn replay<'a>(
             standstill: p.est.is_standstill(),
         },
     })
+}
+
+/// Interfaces of a log in order of appearance; the index is the frame's source. At
+/// most `MAX_INTERFACES` are told apart (a vehicle has a handful); frames of any
+/// further interface are counted as ignored.
+#[derive(Default)]
+struct Interfaces {
+    index: std::collections::HashMap<String, u32>,
+    warned: bool,
+}
+
+const MAX_INTERFACES: usize = 256;
+
+impl Interfaces {
+    fn index(&mut self, name: &str) -> Option<u32> {
+        if let Some(&i) = self.index.get(name) {
+            return Some(i);
+        }
+        if self.index.len() >= MAX_INTERFACES {
+            if !self.warned {
+                self.warned = true;
+                tracing::warn!(
+                    "more than {MAX_INTERFACES} interfaces in the log; frames of the others are ignored"
+                );
+            }
+            return None;
+        }
+        let i = self.index.len() as u32;
+        self.index.insert(name.to_string(), i);
+        Some(i)
+    }
 }
 
 fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
@@ -307,8 +357,8 @@ pub fn write_summary_text(out: &mut dyn Write, s: &Summary) -> std::io::Result<(
     writeln!(out, "--")?;
     writeln!(
         out,
-        "{} lines, {} frames, {} malformed, {} ignored",
-        s.lines, s.frames, s.malformed_lines, s.ignored_frames
+        "{} lines, {} frames, {} malformed, {} ignored, {} clock steps",
+        s.lines, s.frames, s.malformed_lines, s.ignored_frames, s.clock_steps
     )?;
     if !s.malformed_examples.is_empty() {
         writeln!(out, "malformed lines: {:?}", s.malformed_examples)?;

@@ -1,0 +1,123 @@
+//! The pipeline clock: frame timestamps turned into a time that only moves forward.
+//!
+//! Frame timestamps come from a log or from the kernel. A log may hold a line stamped
+//! far in the future or the past (an edited or spliced file, a logger whose clock was
+//! set while it ran); a live ECU without a real-time clock may step its wall clock
+//! when GNSS or NTP arrives. Such a step would freeze the estimator (every later frame
+//! looks old) or make it catch up hours of output at once. So a timestamp that goes
+//! back by more than `BACK_TOL_S`, or forward by more than the configured gap, counts
+//! as a clock step: the pipeline time continues from where it was, shifted by the
+//! step, and the caller restarts what spans time (timeouts, an open standstill).
+
+/// Frames of different interfaces may arrive slightly out of order: a timestamp this
+/// much behind the newest is taken as the newest, not as a step, s.
+pub const BACK_TOL_S: f64 = 0.5;
+
+/// Outcome of mapping one timestamp.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Mapped {
+    /// Pipeline time, s.
+    Time(f64),
+    /// The clock stepped by `step_s` (frame time minus expected); pipeline time `t_s`.
+    Step { t_s: f64, step_s: f64 },
+    /// Not a usable timestamp (NaN or infinite).
+    Invalid,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct FrameClock {
+    /// Pipeline time minus frame time, s.
+    offset_s: f64,
+    /// Newest pipeline time handed out, s.
+    last_s: Option<f64>,
+    max_gap_s: f64,
+    /// Steps seen.
+    pub steps: u64,
+}
+
+impl FrameClock {
+    /// `max_gap_s`: the longest forward jump taken as time that passed.
+    pub fn new(max_gap_s: f64) -> Self {
+        Self {
+            offset_s: 0.0,
+            last_s: None,
+            max_gap_s,
+            steps: 0,
+        }
+    }
+
+    pub fn map(&mut self, frame_t_s: f64) -> Mapped {
+        if !frame_t_s.is_finite() {
+            return Mapped::Invalid;
+        }
+        let Some(last) = self.last_s else {
+            self.last_s = Some(frame_t_s);
+            return Mapped::Time(frame_t_s);
+        };
+        let t = frame_t_s + self.offset_s;
+        let d = t - last;
+        if d >= 0.0 && d <= self.max_gap_s {
+            self.last_s = Some(t);
+            return Mapped::Time(t);
+        }
+        if d < 0.0 && d >= -BACK_TOL_S {
+            return Mapped::Time(last);
+        }
+        // A step: continue from the newest time.
+        self.offset_s = last - frame_t_s;
+        self.steps += 1;
+        Mapped::Step {
+            t_s: last,
+            step_s: d,
+        }
+    }
+
+    /// Newest pipeline time, if any frame was seen.
+    pub fn now_s(&self) -> Option<f64> {
+        self.last_s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn steady_time_passes_through() {
+        let mut c = FrameClock::new(5.0);
+        assert_eq!(c.map(10.0), Mapped::Time(10.0));
+        assert_eq!(c.map(10.01), Mapped::Time(10.01));
+        assert_eq!(c.map(13.0), Mapped::Time(13.0));
+        assert_eq!(c.steps, 0);
+    }
+
+    #[test]
+    fn small_reordering_is_held_not_stepped() {
+        let mut c = FrameClock::new(5.0);
+        c.map(10.0);
+        assert_eq!(c.map(9.8), Mapped::Time(10.0));
+        assert_eq!(c.steps, 0);
+    }
+
+    #[test]
+    fn one_stray_timestamp_costs_two_steps_and_time_goes_on() {
+        let mut c = FrameClock::new(5.0);
+        c.map(1.0);
+        c.map(1.01);
+        assert!(matches!(c.map(9.02), Mapped::Step { t_s, .. } if t_s == 1.01));
+        // Back to the true clock: another step, then normal time from there.
+        assert!(matches!(c.map(1.03), Mapped::Step { t_s, .. } if t_s == 1.01));
+        assert!(matches!(c.map(1.04), Mapped::Time(t) if (t - 1.02).abs() < 1e-9));
+        assert_eq!(c.steps, 2);
+    }
+
+    #[test]
+    fn huge_and_invalid_timestamps_do_not_move_time() {
+        let mut c = FrameClock::new(5.0);
+        c.map(1.0);
+        assert!(matches!(c.map(1125899906842624.0), Mapped::Step { t_s, .. } if t_s == 1.0));
+        assert_eq!(c.map(f64::NAN), Mapped::Invalid);
+        assert_eq!(c.map(f64::INFINITY), Mapped::Invalid);
+        assert!(matches!(c.map(1125899906842624.01), Mapped::Time(t) if (t - 1.01).abs() < 0.1));
+    }
+}
