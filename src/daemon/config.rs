@@ -106,6 +106,9 @@ pub struct Leveling {
     pub invalid_after: u32,
     /// Consecutive good frames before an invalid message is valid again.
     pub valid_after: u32,
+    /// A frame timestamp further ahead than this of the newest one is a clock step,
+    /// not time that passed (see `daemon::clock`), s.
+    pub max_clock_step_s: f64,
 }
 
 impl Default for Leveling {
@@ -118,6 +121,7 @@ impl Default for Leveling {
             valid_min_windows: 4.0,
             invalid_after: 3,
             valid_after: 3,
+            max_clock_step_s: 5.0,
         }
     }
 }
@@ -181,6 +185,20 @@ impl Config {
             msg: e.to_string(),
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
+        let sp = cfg.state.path.as_os_str();
+        if sp.is_empty()
+            || sp.as_encoded_bytes().ends_with(b"/")
+            || cfg.state.path.file_name().is_none()
+        {
+            return Err(ConfigError::Field {
+                path: path.into(),
+                field: "state.path".into(),
+                msg: format!(
+                    "{:?} names no file; give a file path such as /var/lib/leveld/state.json",
+                    cfg.state.path
+                ),
+            });
+        }
         if cfg.can.dbc.is_relative() {
             cfg.can.dbc = base.join(&cfg.can.dbc);
         }
@@ -255,6 +273,48 @@ impl Config {
         if l.invalid_after == 0 || l.valid_after == 0 {
             return Err(field("leveling.invalid_after", "must be at least 1".into()));
         }
+        if !(l.valid_max_std_err_deg > 0.0 && l.valid_max_std_err_deg <= 1.0) {
+            return Err(field(
+                "leveling.valid_max_std_err_deg",
+                "must be above 0 and at most 1 deg (R48 leaves about 0.2 deg)".into(),
+            ));
+        }
+        if !(l.valid_min_windows >= 1.0 && l.valid_min_windows <= 100.0) {
+            return Err(field(
+                "leveling.valid_min_windows",
+                "must be 1..100: VALID could never be reached otherwise".into(),
+            ));
+        }
+        if l.valid_min_windows > self.estimator.average_capacity as f64 {
+            return Err(field(
+                "leveling.valid_min_windows",
+                format!(
+                    "{} windows can never be reached: the average keeps estimator.average_capacity = {}",
+                    l.valid_min_windows, self.estimator.average_capacity
+                ),
+            ));
+        }
+        if !(l.max_clock_step_s >= 0.5 && l.max_clock_step_s <= 3600.0) {
+            return Err(field(
+                "leveling.max_clock_step_s",
+                "choose 0.5..3600 s (longer than any input timeout)".into(),
+            ));
+        }
+        for (name, iface) in self
+            .can
+            .input_interfaces
+            .iter()
+            .map(|i| ("can.input_interfaces", i))
+            .chain([("can.output_interface", &self.can.output_interface)])
+        {
+            if iface.is_empty() || iface.len() > 15 || iface.contains(['/', ' ', '\0']) {
+                return Err(field(
+                    name,
+                    format!("{iface:?} is not an interface name (1..15 bytes, no '/' or spaces)"),
+                ));
+            }
+        }
+
         self.estimator
             .validate()
             .map_err(|e| field(&format!("estimator.{}", e.field), e.to_string()))?;

@@ -166,6 +166,34 @@ impl EstimatorConfig {
                 })
             }
         };
+        // Durations size buffers (seconds times the sample rate): bounded above too.
+        let secs = |field: &'static str, value: f64, max_s: f64| {
+            if value.is_finite() && value > 0.0 && value <= max_s {
+                Ok(())
+            } else {
+                Err(ConfigError {
+                    field,
+                    value,
+                    hint: match max_s {
+                        m if m <= 5.0 => "choose a duration above 0 and at most 5 s",
+                        m if m <= 10.0 => "choose a duration above 0 and at most 10 s",
+                        _ => "choose a duration above 0 and at most 60 s",
+                    },
+                })
+            }
+        };
+        secs("still_window_s", self.still_window_s, 10.0)?;
+        secs("still_time_s", self.still_time_s, 60.0)?;
+        secs("settle_time_s", self.settle_time_s, 60.0)?;
+        secs("load_block_s", self.load_block_s, 60.0)?;
+        secs("max_imu_gap_s", self.max_imu_gap_s, 5.0)?;
+        if self.zero_speed_time_s > 60.0 {
+            return Err(ConfigError {
+                field: "zero_speed_time_s",
+                value: self.zero_speed_time_s,
+                hint: "choose 0..60 s",
+            });
+        }
         nonneg("zero_speed_kmh", self.zero_speed_kmh)?;
         nonneg("zero_speed_time_s", self.zero_speed_time_s)?;
         pos("still_time_s", self.still_time_s)?;
