@@ -141,16 +141,16 @@ fn load_step_at_standstill_is_followed_before_and_after_moving_off() {
     // Within 3 accepted windows after moving off it is still within 0.1 deg.
     let mut n = 0;
     for e in ev.iter() {
-        if let Event::WindowAccepted { window, estimate } = e {
-            if window.t_s > t_change {
-                n += 1;
-                assert!(
-                    (estimate.road_to_body_deg - 1.2).abs() < 0.1,
-                    "window {n}: {estimate:?}"
-                );
-                if n == 3 {
-                    break;
-                }
+        if let Event::WindowAccepted { window, estimate } = e
+            && window.t_s > t_change
+        {
+            n += 1;
+            assert!(
+                (estimate.road_to_body_deg - 1.2).abs() < 0.1,
+                "window {n}: {estimate:?}"
+            );
+            if n == 3 {
+                break;
             }
         }
     }

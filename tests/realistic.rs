@@ -127,10 +127,10 @@ fn decel_bias(learn: bool) -> f64 {
             }
         }
         for e in ev {
-            if let Event::WindowAccepted { window, .. } = e {
-                if window.condition == Condition::DecelBeforeStop {
-                    errs.push(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg);
-                }
+            if let Event::WindowAccepted { window, .. } = e
+                && window.condition == Condition::DecelBeforeStop
+            {
+                errs.push(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg);
             }
         }
     }

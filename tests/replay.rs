@@ -139,7 +139,7 @@ fn simulated_drive_leveling_output_matches_truth_once_valid() {
     let (log, drive, t0) = simulated("multi-stop", 7);
     let (s, _, frames, p) = run(&log, &ReplayOptions::default());
     assert_eq!(s.malformed_lines, 0);
-    for (_, m) in &s.messages {
+    for m in s.messages.values() {
         assert_eq!(
             (
                 m.checksum_errors,

@@ -5,6 +5,9 @@
 //! `tools/test-all.sh` runs them through `tools/vcan-vm.sh`, which provides a kernel
 //! with vcan (this machine's, or a small VM's), with `--ignored --test-threads=1`.
 
+// Signals to the daemon and the tools under test go through libc::kill.
+#![allow(unsafe_code)]
+
 use leveld::can::candump::{CandumpLine, Line, LogFrame, parse_line};
 use leveld::daemon::pipeline::{Leveling, OutputCodec, Status};
 use leveld::sim::canlog::{InputEncoder, write_candump};
@@ -216,10 +219,10 @@ fn drive_log(dir: &Path, name: &str, keep: impl Fn(&LogFrame, f64) -> bool) -> P
     write_candump(&drive, &mut enc, IFACE, 0.0, &mut raw).unwrap();
     let mut out = String::new();
     for l in String::from_utf8(raw).unwrap().lines() {
-        if let Ok(Line::Frame(f)) = parse_line(l) {
-            if keep(&f, f.t_s) {
-                out.push_str(&format!("{}\n", CandumpLine(&f)));
-            }
+        if let Ok(Line::Frame(f)) = parse_line(l)
+            && keep(&f, f.t_s)
+        {
+            out.push_str(&format!("{}\n", CandumpLine(&f)));
         }
     }
     let p = dir.join(name);

@@ -19,6 +19,13 @@ if ! python3 -c 'import cantools' 2>/dev/null; then
   python3 -m pip install -q cantools 2>/dev/null || python3 -m pip install -q --break-system-packages cantools
 fi
 
+echo "== rustfmt and clippy"
+if ! cargo fmt --version >/dev/null 2>&1 || ! cargo clippy --version >/dev/null 2>&1; then
+  rustup component add rustfmt clippy
+fi
+cargo fmt --check
+cargo clippy --all-targets -- -D warnings
+
 echo "== unit, simulation, replay and daemon tests"
 if command -v cargo-nextest >/dev/null 2>&1; then
   cargo nextest run --workspace --no-fail-fast

@@ -336,7 +336,7 @@ impl PitchMethod for Nilsson {
         self.x_deg = Some(x + k * (z - x));
         self.p = (1.0 - k) * p;
         self.updates += 1;
-        if self.updates % 50 == 0 {
+        if self.updates.is_multiple_of(50) {
             self.windows.push((s.t_s, self.x_deg.unwrap_or(0.0)));
         }
     }

@@ -119,20 +119,20 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
             }
             _ => {}
         }
-        if let Some((stop_idx, _)) = plan.load_change {
-            if stop_idx == k {
-                let before = drive.truth_at(t_stop).load_pitch_deg;
-                let after = drive.truth_at(t_go).load_pitch_deg;
-                if (after - before).abs() >= LOAD_CHECKED_DEG {
-                    out.load_changes += 1;
-                    let applied = match (at_stop[k], before_go[k]) {
-                        (Some(e0), Some(e1)) => {
-                            ((e1 - e0) - (after - before)).abs() <= LOAD_APPLIED_TOL_DEG
-                        }
-                        _ => false,
-                    };
-                    out.load_applied += usize::from(applied);
-                }
+        if let Some((stop_idx, _)) = plan.load_change
+            && stop_idx == k
+        {
+            let before = drive.truth_at(t_stop).load_pitch_deg;
+            let after = drive.truth_at(t_go).load_pitch_deg;
+            if (after - before).abs() >= LOAD_CHECKED_DEG {
+                out.load_changes += 1;
+                let applied = match (at_stop[k], before_go[k]) {
+                    (Some(e0), Some(e1)) => {
+                        ((e1 - e0) - (after - before)).abs() <= LOAD_APPLIED_TOL_DEG
+                    }
+                    _ => false,
+                };
+                out.load_applied += usize::from(applied);
             }
         }
     }

@@ -272,14 +272,14 @@ pub fn parse_line(line: &str) -> Result<Line, ParseError> {
         return Ok(Line::Frame(f));
     }
     // Classic frames may end in `_<dlc>` (a DLC above 8 for an 8-byte payload).
-    if !f.fd {
-        if let Some(u) = body.find('_') {
-            let dlc = &body[u + 1..];
-            if dlc.len() != 1 || hex_nibble(dlc.as_bytes()[0]).is_none() {
-                return Err(ParseError::Payload);
-            }
-            body = &body[..u];
+    if !f.fd
+        && let Some(u) = body.find('_')
+    {
+        let dlc = &body[u + 1..];
+        if dlc.len() != 1 || hex_nibble(dlc.as_bytes()[0]).is_none() {
+            return Err(ParseError::Payload);
         }
+        body = &body[..u];
     }
     let b = body.as_bytes();
     let max = if f.fd { 64 } else { 8 };
@@ -349,7 +349,7 @@ mod tests {
     fn variants_of_real_candump_output() {
         assert_eq!(
             frame("(1700000000.123456789)   vcan0  3E0#0102").t_s,
-            1700000000.123456789
+            1_700_000_000.123_456_7
         );
         assert!(frame("(0.000001) can0 12345678#DEADBEEF").extended);
         let r = frame("(1.5) can0 123#R");

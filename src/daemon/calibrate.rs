@@ -53,19 +53,20 @@ pub fn from_log(
             ReadLine::TooLong => continue,
             ReadLine::Line => {}
         }
-        if let Ok(Line::Frame(f)) = parse_bytes(&line) {
-            if interface.is_none_or(|i| i == f.iface()) && !f.fd {
-                p.on_can_frame(f.t_s, &f, &mut Quiet);
-                if let Some((pitch, settled)) = p.est.standstill_pitch() {
-                    let cal = Calibration {
-                        reference_pitch_deg: pitch,
-                        settled_s: settled,
-                    };
-                    if settled >= duration_s {
-                        return Ok(cal);
-                    }
-                    best = Some(cal);
+        if let Ok(Line::Frame(f)) = parse_bytes(&line)
+            && interface.is_none_or(|i| i == f.iface())
+            && !f.fd
+        {
+            p.on_can_frame(f.t_s, &f, &mut Quiet);
+            if let Some((pitch, settled)) = p.est.standstill_pitch() {
+                let cal = Calibration {
+                    reference_pitch_deg: pitch,
+                    settled_s: settled,
+                };
+                if settled >= duration_s {
+                    return Ok(cal);
                 }
+                best = Some(cal);
             }
         }
     }

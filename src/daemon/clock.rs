@@ -60,7 +60,7 @@ impl FrameClock {
             self.last_s = Some(t);
             return Mapped::Time(t);
         }
-        if d < 0.0 && d >= -BACK_TOL_S {
+        if (-BACK_TOL_S..0.0).contains(&d) {
             return Mapped::Time(last);
         }
         // A step: continue from the newest time.

@@ -396,9 +396,9 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
 pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
     let names = p.message_names();
     let mut messages = serde_json::Map::new();
-    for slot in 0..3 {
+    for (slot, name) in names.iter().enumerate() {
         messages.insert(
-            names[slot].clone(),
+            name.clone(),
             serde_json::to_value(p.stats(slot)).unwrap_or_default(),
         );
     }

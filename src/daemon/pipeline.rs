@@ -598,7 +598,7 @@ impl Pipeline {
     }
 
     fn check_timeouts(&mut self, t_s: f64, sink: &mut dyn Sink) {
-        for i in 0..3 {
+        for (i, role) in ROLE_NAMES.iter().enumerate() {
             let timeout = self.inputs[i].timeout_s;
             let s = &mut self.st[i];
             let since = s.last_good_s.unwrap_or(self.start_s);
@@ -607,10 +607,7 @@ impl Pipeline {
                 s.stats.timeouts += 1;
                 s.counter.reset();
                 self.source[i] = None;
-                sink.notice(&Notice::InputLost {
-                    t_s,
-                    message: ROLE_NAMES[i],
-                });
+                sink.notice(&Notice::InputLost { t_s, message: role });
                 if i == WHEELS {
                     self.est.wheels_lost();
                 }
@@ -738,12 +735,12 @@ impl Pipeline {
         let counter = codec.counter(&d);
         if codec.check_counter {
             let step = codec.max_step;
-            if let Some(c) = counter {
-                if !self.st[slot].counter.accept(c, step) {
-                    self.st[slot].stats.counter_errors += 1;
-                    self.fail(slot, t_s, "alive counter", sink);
-                    return;
-                }
+            if let Some(c) = counter
+                && !self.st[slot].counter.accept(c, step)
+            {
+                self.st[slot].stats.counter_errors += 1;
+                self.fail(slot, t_s, "alive counter", sink);
+                return;
             }
         }
         self.good(slot, t_s, sink);

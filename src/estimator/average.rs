@@ -160,6 +160,15 @@ fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+impl Averager {
+    /// Seed with a restored value worth `weight` windows (`accepted` of them under this load).
+    pub fn restore_prior(&mut self, value_deg: f64, weight: f64, accepted: u64) {
+        self.entries.clear();
+        self.push_weighted(value_deg, weight);
+        self.accepted = accepted;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -241,14 +250,5 @@ mod tests {
             a.push(x);
         }
         assert!((a.combined().unwrap().value_deg - 1.0).abs() < 1e-12);
-    }
-}
-
-impl Averager {
-    /// Seed with a restored value worth `weight` windows (`accepted` of them under this load).
-    pub fn restore_prior(&mut self, value_deg: f64, weight: f64, accepted: u64) {
-        self.entries.clear();
-        self.push_weighted(value_deg, weight);
-        self.accepted = accepted;
     }
 }

@@ -168,19 +168,6 @@ pub(super) fn window_weight(duration_s: f64) -> f64 {
     (var(WINDOW_REF_S) / var(duration_s.max(0.0))).clamp(0.1, 1.0)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::window_weight;
-
-    #[test]
-    fn long_windows_weigh_less_and_the_weight_is_bounded() {
-        assert!((window_weight(2.0) - 1.0).abs() < 1e-12);
-        assert!(window_weight(3.5) < 0.3);
-        assert_eq!(window_weight(0.1), 1.0);
-        assert_eq!(window_weight(20.0), 0.1);
-    }
-}
-
 /// The first wheel speed after a drive-off may differ from the speed the forward window
 /// integrated by this much, m/s, plus `SPEED_CHECK_SHARE` of it (tyre radius).
 const SPEED_CHECK_TOL_MPS: f64 = 0.12;
@@ -201,5 +188,18 @@ impl Estimator {
         if (imu_mps - wheel_mps).abs() > SPEED_CHECK_TOL_MPS + SPEED_CHECK_SHARE * wheel_mps {
             ctx.speed_mismatch = Some((imu_mps, wheel_mps));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::window_weight;
+
+    #[test]
+    fn long_windows_weigh_less_and_the_weight_is_bounded() {
+        assert!((window_weight(2.0) - 1.0).abs() < 1e-12);
+        assert!(window_weight(3.5) < 0.3);
+        assert_eq!(window_weight(0.1), 1.0);
+        assert_eq!(window_weight(20.0), 0.1);
     }
 }

@@ -211,10 +211,11 @@ impl Estimator {
     /// the deceleration window of a stop that has not settled for `settle_time_s` yet.
     pub fn finish(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
         self.flush_block(t_s, emit);
-        if let Some(st) = self.standstill {
-            if !st.settled_done && st.seg_n >= MIN_SETTLED_SAMPLES {
-                self.on_settled(t_s, emit);
-            }
+        if let Some(st) = self.standstill
+            && !st.settled_done
+            && st.seg_n >= MIN_SETTLED_SAMPLES
+        {
+            self.on_settled(t_s, emit);
         }
     }
 
@@ -288,10 +289,10 @@ impl Estimator {
             self.track_dead_zone(wheels_zero),
             self.quiet_since,
             self.wheels_zero_since,
-        ) {
-            if s.t_s - q0 >= self.cfg.still_time_s && s.t_s - w0 >= self.cfg.zero_speed_time_s {
-                self.begin_standstill(q0, s.t_s, emit);
-            }
+        ) && s.t_s - q0 >= self.cfg.still_time_s
+            && s.t_s - w0 >= self.cfg.zero_speed_time_s
+        {
+            self.begin_standstill(q0, s.t_s, emit);
         }
 
         if self.fwd.is_active() {

@@ -120,14 +120,14 @@ impl Estimator {
         // A settled window that agrees with the carried tilt: the car is at rest there.
         // Checked once per period, so that an acceleration ramping in slowly cannot be
         // absorbed a sample at a time.
-        if self.bias_window_ok && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S {
-            if let Some(q_now) = attitude_from_gravity(&self.still_mean_acc) {
-                if (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD {
-                    m.q = q_now;
-                    m.v_mps = 0.0;
-                    m.t_anchor_s = m.t_last_s;
-                }
-            }
+        if self.bias_window_ok
+            && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S
+            && let Some(q_now) = attitude_from_gravity(&self.still_mean_acc)
+            && (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD
+        {
+            m.q = q_now;
+            m.v_mps = 0.0;
+            m.t_anchor_s = m.t_last_s;
         }
         m.speed_mps()
     }

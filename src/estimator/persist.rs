@@ -82,10 +82,10 @@ impl Estimator {
         if !ok_angle(st.last_road_slope_deg) {
             return Err(StateError::Implausible("last_road_slope_deg"));
         }
-        if let Some(b) = st.gyro_bias_dps {
-            if b.iter().any(|x| !x.is_finite() || x.abs() > 50.0) {
-                return Err(StateError::Implausible("gyro_bias_dps"));
-            }
+        if let Some(b) = st.gyro_bias_dps
+            && b.iter().any(|x| !x.is_finite() || x.abs() > 50.0)
+        {
+            return Err(StateError::Implausible("gyro_bias_dps"));
         }
         let mut avg = Averager::new(
             self.cfg.averaging,
@@ -105,20 +105,20 @@ impl Estimator {
             .gyro_bias_dps
             .map(|b| Vector3::from(b).map(f64::to_radians));
         self.baseline_pitch_rad = st.baseline_pitch_deg.map(f64::to_radians);
-        if let Some(g) = st.gravity_mps2 {
-            if !(g.is_finite() && (5.0..15.0).contains(&g)) {
-                return Err(StateError::Implausible("gravity_mps2"));
-            }
+        if let Some(g) = st.gravity_mps2
+            && !(g.is_finite() && (5.0..15.0).contains(&g))
+        {
+            return Err(StateError::Implausible("gravity_mps2"));
         }
-        if let Some(f) = &st.lever_fit {
-            if !f.is_finite() || f.mtm.iter().step_by(4).any(|d| *d < 0.0) {
-                return Err(StateError::Implausible("lever_fit"));
-            }
+        if let Some(f) = &st.lever_fit
+            && (!f.is_finite() || f.mtm.iter().step_by(4).any(|d| *d < 0.0))
+        {
+            return Err(StateError::Implausible("lever_fit"));
         }
-        if let Some(b) = st.accel_bias_xy_mps2 {
-            if b.iter().any(|x| !x.is_finite() || x.abs() > 2.0) {
-                return Err(StateError::Implausible("accel_bias_xy_mps2"));
-            }
+        if let Some(b) = st.accel_bias_xy_mps2
+            && b.iter().any(|x| !x.is_finite() || x.abs() > 2.0)
+        {
+            return Err(StateError::Implausible("accel_bias_xy_mps2"));
         }
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         let prior = Vector3::from(self.cfg.lever_arm_m);

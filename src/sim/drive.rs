@@ -163,7 +163,9 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let wheel_every = (sen.imu_rate_hz / sen.wheel_rate_hz).round().max(1.0) as usize;
 
     let mut window: [Option<Kin>; 3] = [None, None, None];
-    let mut inst: Vec<Option<(Vector3<f64>, Vector3<f64>, Kin)>> = vec![None; sub];
+    // Specific force, rate and kinematics at each simulation step of one output period.
+    type Step = (Vector3<f64>, Vector3<f64>, Kin);
+    let mut inst: Vec<Option<Step>> = vec![None; sub];
     for k in 0..=n_steps {
         let t = k as f64 * h;
         // Advance the profile to time t (exact for piecewise-constant acceleration).
@@ -230,7 +232,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
         }
         // A sensor sample is the mean over its output period centred on the sample time,
         // as a MEMS IMU's digital filter delivers it; point samples would alias steps.
-        if k >= sub + 1 && (k - 1 - sub / 2) % sub == 0 {
+        if k > sub && (k - 1 - sub / 2).is_multiple_of(sub) {
             let c = k - 1 - sub / 2;
             let mut f_b = Vector3::zeros();
             let mut w_b = Vector3::zeros();
@@ -300,7 +302,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
             if !dropped && !in_gap {
                 imu.push(ImuSample::new(t_rx, f.into(), w.into()));
             }
-            if idx % wheel_every == 0 {
+            if idx.is_multiple_of(wheel_every) {
                 wheels.push(wheel_speeds(
                     m.truth.t_s,
                     m.truth.v_mps,
