@@ -704,3 +704,91 @@ for line in open(sys.argv[2]):
         }
     }
 }
+
+/// Set the wall clock `delta_s` away from where it is (root, in the VM).
+fn step_wall_clock(delta_s: i64) {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs() as i64;
+    let st = Command::new("date")
+        .arg("-s")
+        .arg(format!("@{}", now + delta_s))
+        .stdout(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(st.success(), "date -s failed");
+}
+
+#[test]
+#[ignore = "needs vcan: run by tools/test-all.sh through tools/vcan-vm.sh"]
+fn t8_a_wall_clock_step_changes_neither_the_period_nor_the_estimate() {
+    let dir = workdir("clockstep");
+    let _bus = Vcan::up();
+    let log = drive_log(&dir, "drive.log", |_, _| true);
+    let frames = read_frames(&log);
+    let span_s = frames.last().unwrap().t_s - frames.first().unwrap().t_s;
+    let d = Leveld::start(&dir, "run");
+    let capture = Candump::start(dir.join("all.log"), "");
+    // One hour forward a third into the drive, and back two thirds into it.
+    let stepper = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_secs_f64(span_s / 3.0));
+        step_wall_clock(3600);
+        std::thread::sleep(Duration::from_secs_f64(span_s / 3.0));
+        step_wall_clock(-3600);
+    });
+    canplayer(&log, None);
+    stepper.join().unwrap();
+    let all: Vec<LogFrame> = capture.stop();
+    // Output frames while the inputs flow, in capture order (the stamps jump).
+    let first_in = all.iter().position(|f| f.id != 0x3E8).unwrap();
+    let last_in = all.iter().rposition(|f| f.id != 0x3E8).unwrap();
+    let out_frames: Vec<LogFrame> = all[first_in..=last_in]
+        .iter()
+        .filter(|f| f.id == 0x3E8)
+        .skip(5)
+        .copied()
+        .collect();
+    let (code, text) = d.term();
+    assert_eq!(code, 0, "{text}");
+    let s = Leveld::final_stats(&text);
+    assert_eq!(s["wall_clock_steps"].as_u64(), Some(2), "{s}");
+    for m in ["WHL_SPD11", "IMU_ACC", "IMU_GYR"] {
+        assert_eq!(s["messages"][m]["timeouts"].as_u64(), Some(0), "{m}: {s}");
+    }
+    // candump stamps with the wall clock: split its record at the steps and check
+    // the period of each part.
+    let mut parts: Vec<Vec<LogFrame>> = vec![Vec::new()];
+    for w in out_frames.windows(2) {
+        if (w[1].t_s - w[0].t_s).abs() > 100.0 {
+            parts.push(Vec::new());
+        }
+        parts.last_mut().unwrap().push(w[1]);
+    }
+    assert_eq!(parts.len(), 3, "two steps in the candump record");
+    for (i, p) in parts.iter().enumerate() {
+        let (t0, t1) = (p.first().unwrap().t_s, p.last().unwrap().t_s);
+        let rate = periodic_rate(p, t0 + 1.0, t1 - 1.0);
+        assert!(
+            (9.0..=11.0).contains(&rate),
+            "part {i}: LEVELING at {rate:.2} Hz"
+        );
+    }
+    let out = output_codec();
+    check_counter_and_crc(&out, &out_frames);
+    let statuses: Vec<Status> = out_frames
+        .iter()
+        .map(|f| status(&decode(&out, f)))
+        .collect();
+    assert!(
+        !statuses.contains(&Status::HoldInputLost),
+        "a wall clock step must not look like input loss"
+    );
+    let last = decode(&out, out_frames.last().unwrap());
+    assert_eq!(status(&last), Status::Valid);
+    assert!(
+        (last.road_to_body_deg - TRUTH_DEG).abs() < 0.2,
+        "final {} vs truth {TRUTH_DEG}",
+        last.road_to_body_deg
+    );
+}

@@ -20,44 +20,81 @@ use socketcan::tokio::CanSocket;
 use socketcan::{CanFilter, CanFrame, SocketOptions};
 use std::path::Path;
 use std::pin::Pin;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// Clock hold-back of the idle timer, s.
 const HOLD_BACK_S: f64 = 0.02;
 
-/// A kernel timestamp older than this when read is not believed (the wall clock
-/// stepped in between): the frame is taken as received now, s.
-const MAX_FRAME_AGE_S: f64 = 1.0;
+/// A jump of the wall clock against the monotonic clock larger than this between two
+/// reads is a step, not a slew, s.
+const MAX_WALL_STEP_S: f64 = 0.5;
 
 /// Shortest watchdog petting interval: a WATCHDOG_USEC below twice this cannot be
 /// served by a frame loop and is served at this rate instead.
 const MIN_WATCHDOG_PET: Duration = Duration::from_millis(20);
 
-/// Pipeline time of a live run: CLOCK_MONOTONIC since start, s. The kernel stamps
-/// frames with the wall clock, which GNSS, NTP or a user may step at any moment; only
-/// a frame's age (wall now minus its stamp) is taken from it, so a step of the wall
-/// clock changes neither the output period nor the estimate.
+/// Pipeline time of a live run. Frames carry the kernel's receive time, a wall-clock
+/// time, so that a candump recording of the same frames replays to the same output. The
+/// wall clock may be stepped at any moment (GNSS or NTP after boot, a user), so the
+/// offset between the wall clock and CLOCK_MONOTONIC is read with every frame and
+/// tick: a slow slew is followed, and a jump of more than `MAX_WALL_STEP_S` is a step,
+/// taken out of every later stamp and tick. A step of the wall clock therefore changes
+/// neither the output period nor the estimate.
 struct MonoClock {
     start: Instant,
+    /// Wall clock minus monotonic clock as last read, s.
+    wall_minus_mono_s: f64,
+    /// Sum of the wall-clock steps taken out, s.
+    offset_s: f64,
+    steps: u64,
+}
+
+fn wall_s(t: SystemTime) -> f64 {
+    match t.duration_since(UNIX_EPOCH) {
+        Ok(d) => d.as_secs_f64(),
+        Err(e) => -e.duration().as_secs_f64(),
+    }
 }
 
 impl MonoClock {
     fn new() -> Self {
+        let start = Instant::now();
         Self {
-            start: Instant::now(),
+            start,
+            wall_minus_mono_s: wall_s(SystemTime::now()),
+            offset_s: 0.0,
+            steps: 0,
         }
     }
 
-    fn now_s(&self) -> f64 {
-        self.start.elapsed().as_secs_f64()
+    /// Read both clocks; take a jump of their difference out as a step. Returns the
+    /// monotonic time, s.
+    fn sample(&mut self) -> f64 {
+        let mono = self.start.elapsed().as_secs_f64();
+        let d = wall_s(SystemTime::now()) - mono;
+        let jump = d - self.wall_minus_mono_s;
+        if jump.abs() > MAX_WALL_STEP_S {
+            self.offset_s -= jump;
+            self.steps += 1;
+            tracing::warn!(
+                step_s = jump,
+                "the wall clock stepped; leveld keeps its own time"
+            );
+        }
+        self.wall_minus_mono_s = d;
+        mono
     }
 
-    fn frame_s(&self, stamp: SystemTime) -> f64 {
-        let now = self.now_s();
-        match SystemTime::now().duration_since(stamp) {
-            Ok(age) if age.as_secs_f64() <= MAX_FRAME_AGE_S => (now - age.as_secs_f64()).max(0.0),
-            _ => now,
-        }
+    /// Now, in pipeline time.
+    fn now_s(&mut self) -> f64 {
+        let mono = self.sample();
+        mono + self.wall_minus_mono_s + self.offset_s
+    }
+
+    /// Pipeline time of a frame stamped `stamp` by the kernel.
+    fn frame_s(&mut self, stamp: SystemTime) -> f64 {
+        self.sample();
+        wall_s(stamp) + self.offset_s
     }
 }
 
@@ -84,6 +121,8 @@ pub struct LiveStats {
     pub reconnects: u64,
     pub bus_off: u64,
     pub error_passive: u64,
+    /// Steps of the wall clock taken out of the frame stamps.
+    pub wall_clock_steps: u64,
 }
 
 struct LiveSink<'a> {
@@ -279,7 +318,7 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let wd = sd_notify::watchdog_enabled();
     let mut watchdog = tokio::time::interval(watchdog_pet(wd));
-    let clock = MonoClock::new();
+    let mut clock = MonoClock::new();
     let mut status_every = tokio::time::interval(Duration::from_secs(5));
     let mut backoff = Duration::from_millis(100);
     let mut ready_sent = false;
@@ -333,7 +372,9 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                     match r {
                         Ok((CanFrame::Data(f), ts)) => {
                             let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                            p.on_can_frame_from(source as u32, clock.frame_s(ts), &f, &mut sink);
+                            let t = clock.frame_s(ts);
+                            sink.stats.wall_clock_steps = clock.steps;
+                            p.on_can_frame_from(source as u32, t, &f, &mut sink);
                             if sink.lost_output { break "output socket failed".to_string() }
                         }
                         Ok((CanFrame::Remote(_), _)) => {}
@@ -412,6 +453,7 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
         "send_dropped": live.send_dropped,
         "reconnects": live.reconnects,
         "bus_off": live.bus_off,
+        "wall_clock_steps": live.wall_clock_steps,
         "error_passive": live.error_passive,
         "status": p.status(),
         "road_to_body_deg": p.estimate().map(|e| e.road_to_body_deg),
@@ -446,7 +488,7 @@ pub fn calibrate_live(
         let ids = p.input_ids();
         let (mut frames, _out) = open_all(cfg, &ids).context("opening CAN for calibration")?;
         let mut stats = LiveStats::default();
-        let clock = MonoClock::new();
+        let mut clock = MonoClock::new();
         let limit = tokio::time::sleep(Duration::from_secs_f64(duration_s + 30.0));
         tokio::pin!(limit);
         let mut best = None;
