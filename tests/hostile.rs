@@ -255,3 +255,22 @@ fn calibration_needs_a_real_standstill_duration() {
     assert!(leveld::daemon::calibrate::check_duration(30.0).is_ok());
     let _ = Path::new(".");
 }
+
+#[test]
+fn dbc_files_in_windows_1252_or_with_a_bom_load() {
+    use leveld::can::dbc::Database;
+    let text = std::fs::read(root().join("dbc/leveld.dbc")).unwrap();
+    let dir = std::env::temp_dir().join(format!("leveld-dbc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut latin = text.clone();
+    latin.extend_from_slice(b"\nCM_ \"Au\xdfentemperatur in \xb0C \x96 gepr\xfcft\";\n");
+    let mut bom = b"\xEF\xBB\xBF".to_vec();
+    bom.extend_from_slice(&text);
+    for (name, bytes) in [("latin.dbc", latin), ("bom.dbc", bom)] {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let db = Database::load(&p).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(db.message("WHL_SPD11").is_ok(), "{name}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

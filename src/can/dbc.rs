@@ -54,13 +54,37 @@ pub struct MessageInfo {
     pub len: u8,
 }
 
+/// Text of a DBC file: UTF-8 without its byte-order mark, else Windows-1252 (which
+/// covers Latin-1 but for 0x80-0x9F).
+pub fn decode_text(bytes: &[u8]) -> std::borrow::Cow<'_, str> {
+    let b = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    match std::str::from_utf8(b) {
+        Ok(s) => std::borrow::Cow::Borrowed(s),
+        Err(_) => std::borrow::Cow::Owned(b.iter().map(|&c| cp1252(c)).collect()),
+    }
+}
+
+fn cp1252(c: u8) -> char {
+    const HIGH: [u16; 32] = [
+        0x20AC, 0xFFFD, 0x201A, 0x0192, 0x201E, 0x2026, 0x2020, 0x2021, 0x02C6, 0x2030, 0x0160,
+        0x2039, 0x0152, 0xFFFD, 0x017D, 0xFFFD, 0xFFFD, 0x2018, 0x2019, 0x201C, 0x201D, 0x2022,
+        0x2013, 0x2014, 0x02DC, 0x2122, 0x0161, 0x203A, 0x0153, 0xFFFD, 0x017E, 0x0178,
+    ];
+    match c {
+        0x80..=0x9F => char::from_u32(HIGH[(c - 0x80) as usize] as u32).unwrap_or('\u{FFFD}'),
+        _ => c as char,
+    }
+}
+
 impl Database {
+    /// Load a DBC file: UTF-8 (with or without a byte-order mark) or, as many tools
+    /// write them, Windows-1252.
     pub fn load(path: &Path) -> Result<Self, DbcError> {
-        let text = std::fs::read_to_string(path).map_err(|source| DbcError::Read {
+        let bytes = std::fs::read(path).map_err(|source| DbcError::Read {
             path: path.into(),
             source,
         })?;
-        Self::parse(path, &text)
+        Self::parse(path, &decode_text(&bytes))
     }
 
     pub fn parse(path: &Path, text: &str) -> Result<Self, DbcError> {

@@ -96,6 +96,15 @@ pub trait Sink {
     fn frame(&mut self, t_s: f64, id: u32, extended: bool, data: &[u8; 8]);
 }
 
+/// A sink that keeps nothing (tools, fuzzing).
+pub struct NullSink;
+
+impl Sink for NullSink {
+    fn event(&mut self, _: &Event) {}
+    fn notice(&mut self, _: &Notice) {}
+    fn frame(&mut self, _: f64, _: u32, _: bool, _: &[u8; 8]) {}
+}
+
 /// Fixed-size codec of one input message.
 #[derive(Debug, Clone)]
 pub struct MsgCodec {

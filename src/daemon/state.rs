@@ -45,25 +45,30 @@ pub fn load(path: &Path) -> Loaded {
             };
         }
     };
-    let reason = match serde_json::from_slice::<PersistedState>(&bytes) {
-        Ok(st) if st.format != PersistedState::FORMAT => {
-            format!(
-                "format {} is not the supported {}",
-                st.format,
-                PersistedState::FORMAT
-            )
-        }
+    match parse(&bytes) {
+        Ok(st) => Loaded::State(Box::new(st)),
+        Err(reason) => Loaded::Corrupt {
+            moved_to: move_aside(path),
+            reason,
+        },
+    }
+}
+
+/// Read a state file's bytes; the error says what is wrong with them.
+pub fn parse(bytes: &[u8]) -> Result<PersistedState, String> {
+    match serde_json::from_slice::<PersistedState>(bytes) {
+        Ok(st) if st.format != PersistedState::FORMAT => Err(format!(
+            "format {} is not the supported {}",
+            st.format,
+            PersistedState::FORMAT
+        )),
         Ok(st) => match st.reference_pitch_deg {
             Some(r) if !r.is_finite() || r.abs() > 10.0 => {
-                format!("reference pitch {r} is implausible")
+                Err(format!("reference pitch {r} is implausible"))
             }
-            _ => return Loaded::State(Box::new(st)),
+            _ => Ok(st),
         },
-        Err(e) => format!("not valid state JSON: {e}"),
-    };
-    Loaded::Corrupt {
-        moved_to: move_aside(path),
-        reason,
+        Err(e) => Err(format!("not valid state JSON: {e}")),
     }
 }
 
