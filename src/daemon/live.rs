@@ -401,8 +401,10 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                     }
                 }
                 _ = tick.tick() => {
+                    let now = clock.now_s();
+                    stats.wall_clock_steps = clock.steps;
                     let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                    p.tick(clock.now_s() - HOLD_BACK_S, &mut sink);
+                    p.tick(now - HOLD_BACK_S, &mut sink);
                     if sink.lost_output { break "output socket failed".to_string() }
                 }
                 _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
