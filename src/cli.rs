@@ -15,12 +15,28 @@ pub struct Cli {
     pub command: Command,
 }
 
+/// Output of `replay`, `status` and `bench`: a table for people, JSON for programs.
 #[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
 pub enum Format {
     Table,
     Json,
-    /// Pooled over the settings of each bias or noise value (paper-grid only).
+}
+
+/// Output of `simulate paper-grid`.
+#[cfg(feature = "sim")]
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum GridFormat {
+    Table,
+    Json,
+    /// Pooled over the settings of each bias or noise value.
     Summary,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum Shell {
+    Bash,
+    Zsh,
+    Fish,
 }
 
 #[derive(Debug, Subcommand)]
@@ -73,18 +89,37 @@ pub enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// What the running daemon reports (status, estimate, inputs, last save); when it
+    /// is not running, says so and shows the saved state.
+    Status {
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = Format::Table)]
+        format: Format,
+    },
+    /// Print a shell completion script.
+    Completions {
+        #[arg(value_enum)]
+        shell: Shell,
+    },
+    /// Print the man page (roff).
+    #[command(hide = true)]
+    Man,
     /// Benchmarks.
+    #[cfg(feature = "sim")]
     Bench {
         #[command(subcommand)]
         what: BenchCmd,
     },
     /// Run the simulator.
+    #[cfg(feature = "sim")]
     Simulate {
         #[command(subcommand)]
         what: SimulateCmd,
     },
 }
 
+#[cfg(feature = "sim")]
 #[derive(Debug, Subcommand)]
 pub enum BenchCmd {
     /// leveld against the Kasaba- and Nilsson-style baselines on simulated drives.
@@ -109,6 +144,7 @@ pub enum BenchCmd {
     },
 }
 
+#[cfg(feature = "sim")]
 #[derive(Debug, Subcommand)]
 pub enum SimulateCmd {
     /// Simulate a drive and write it as a candump log through the DBC, with a truth file.
@@ -142,8 +178,8 @@ pub enum SimulateCmd {
         runs: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        #[arg(long, value_enum, default_value_t = Format::Table)]
-        format: Format,
+        #[arg(long, value_enum, default_value_t = GridFormat::Table)]
+        format: GridFormat,
         /// Worker threads (default: available cores).
         #[arg(long)]
         threads: Option<usize>,
@@ -151,6 +187,7 @@ pub enum SimulateCmd {
 }
 
 pub fn run(cli: Cli) -> Result<i32> {
+    use crate::commands;
     match cli.command {
         Command::Replay {
             input,
@@ -159,7 +196,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             interface,
             format,
             strict,
-        } => crate::report::replay(
+        } => commands::replay::run(
             &input,
             config.as_deref(),
             output.as_deref(),
@@ -175,7 +212,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             duration,
             state,
             dry_run,
-        } => crate::report::calibrate(
+        } => commands::calibrate::run(
             config.as_deref(),
             log.as_deref(),
             interface.as_deref(),
@@ -183,7 +220,26 @@ pub fn run(cli: Cli) -> Result<i32> {
             state.as_deref(),
             dry_run,
         ),
-        Command::CheckConfig { config } => crate::report::check_config(config.as_deref()),
+        Command::CheckConfig { config } => commands::check_config::run(config.as_deref()),
+        Command::Status { config, format } => {
+            commands::status::run(config.as_deref(), format == Format::Json)
+        }
+        Command::Completions { shell } => {
+            let shell = match shell {
+                Shell::Bash => clap_complete::Shell::Bash,
+                Shell::Zsh => clap_complete::Shell::Zsh,
+                Shell::Fish => clap_complete::Shell::Fish,
+            };
+            let mut cmd = <Cli as clap::CommandFactory>::command();
+            clap_complete::generate(shell, &mut cmd, "leveld", &mut std::io::stdout());
+            Ok(0)
+        }
+        Command::Man => {
+            let cmd = <Cli as clap::CommandFactory>::command();
+            clap_mangen::Man::new(cmd).render(&mut std::io::stdout())?;
+            Ok(0)
+        }
+        #[cfg(feature = "sim")]
         Command::Bench { what } => match what {
             BenchCmd::Accuracy {
                 scenarios,
@@ -192,7 +248,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 threads,
                 ablation,
                 seeds,
-            } => crate::report::bench_accuracy(
+            } => commands::bench::accuracy(
                 &scenarios,
                 format == Format::Json,
                 plots.as_deref(),
@@ -201,6 +257,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 seeds,
             ),
         },
+        #[cfg(feature = "sim")]
         Command::Simulate { what } => match what {
             SimulateCmd::Drive {
                 preset,
@@ -212,7 +269,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 t0,
                 dbc,
             } => {
-                crate::report::simulate_drive(
+                commands::simulate::drive(
                     &preset,
                     scenario.as_deref(),
                     seed,
@@ -230,7 +287,12 @@ pub fn run(cli: Cli) -> Result<i32> {
                 format,
                 threads,
             } => {
-                crate::report::paper_grid(runs, seed, format, threads)?;
+                let format = match format {
+                    GridFormat::Table => commands::simulate::GridFormat::Table,
+                    GridFormat::Json => commands::simulate::GridFormat::Json,
+                    GridFormat::Summary => commands::simulate::GridFormat::Summary,
+                };
+                commands::simulate::paper_grid(runs, seed, format, threads)?;
                 Ok(0)
             }
         },

@@ -17,6 +17,15 @@ fn main() {
     }
     match leveld::cli::run(cli) {
         Ok(code) => std::process::exit(code),
+        // A reader that stopped early (`leveld man | head`) is no error of leveld's.
+        Err(e)
+            if e.chain().any(|c| {
+                c.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            std::process::exit(0)
+        }
         Err(e) => {
             eprintln!("leveld: error: {e:#}");
             std::process::exit(2);

@@ -130,6 +130,14 @@ impl Default for Leveling {
 #[serde(deny_unknown_fields)]
 pub struct StateConfig {
     pub path: PathBuf,
+    /// Where the running daemon publishes its status for `leveld status`; its folder
+    /// must exist (the unit's RuntimeDirectory). Empty: publish nothing.
+    #[serde(default = "default_status_path")]
+    pub status_path: PathBuf,
+}
+
+fn default_status_path() -> PathBuf {
+    PathBuf::from("/run/leveld/status.json")
 }
 
 /// The whole configuration.
@@ -185,11 +193,11 @@ impl Config {
             msg: e.to_string(),
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
-        let sp = cfg.state.path.as_os_str();
-        if sp.is_empty()
-            || sp.as_encoded_bytes().ends_with(b"/")
-            || cfg.state.path.file_name().is_none()
-        {
+        let names_no_file = |p: &Path| {
+            let b = p.as_os_str().as_encoded_bytes();
+            b.is_empty() || b.ends_with(b"/") || p.file_name().is_none()
+        };
+        if names_no_file(&cfg.state.path) {
             return Err(ConfigError::Field {
                 path: path.into(),
                 field: "state.path".into(),
@@ -199,11 +207,24 @@ impl Config {
                 ),
             });
         }
+        let status = cfg.state.status_path.clone();
+        if !status.as_os_str().is_empty() && names_no_file(&status) {
+            return Err(ConfigError::Field {
+                path: path.into(),
+                field: "state.status_path".into(),
+                msg: format!(
+                    "{status:?} names no file; give a file path such as /run/leveld/status.json, or \"\" to publish none"
+                ),
+            });
+        }
         if cfg.can.dbc.is_relative() {
             cfg.can.dbc = base.join(&cfg.can.dbc);
         }
         if cfg.state.path.is_relative() {
             cfg.state.path = base.join(&cfg.state.path);
+        }
+        if !status.as_os_str().is_empty() && cfg.state.status_path.is_relative() {
+            cfg.state.status_path = base.join(&cfg.state.status_path);
         }
         cfg.validate(path)?;
         Ok(cfg)

@@ -7,6 +7,7 @@
 
 use super::pipeline::{Notice, Pipeline, Sink};
 use super::state::{self, Loaded, PersistedState};
+use super::status::{self, SaveInfo};
 use super::{ConfigSource, load};
 use crate::can::{
     CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_CRTL_RX_PASSIVE, CAN_ERR_CRTL_TX_PASSIVE,
@@ -18,7 +19,7 @@ use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
 use futures_util::stream::{SelectAll, StreamExt};
 use socketcan::tokio::CanSocket;
 use socketcan::{CanFilter, CanFrame, SocketOptions};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -320,6 +321,16 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
     let mut watchdog = tokio::time::interval(watchdog_pet(wd));
     let mut clock = MonoClock::new();
     let mut status_every = tokio::time::interval(Duration::from_secs(5));
+    let mut publish_every = tokio::time::interval(Duration::from_secs(1));
+    publish_every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut publisher = Publisher {
+        path: cfg.state.status_path.clone(),
+        state_path: state_path.clone(),
+        started_unix_s: status::unix_now_s(),
+        last_save: None,
+        can: "opening".into(),
+        warned: false,
+    };
     let mut backoff = Duration::from_millis(100);
     let mut ready_sent = false;
     let mut last_status = None;
@@ -331,10 +342,12 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                     tracing::info!(inputs = ?cfg.can.input_interfaces, output = %cfg.can.output_interface, "CAN open");
                 }
                 backoff = Duration::from_millis(100);
+                publisher.can = "open".into();
                 x
             }
             Err(e) => {
                 tracing::warn!("cannot open CAN ({e}); retrying in {:?}", backoff);
+                publisher.can = format!("waiting: {e}");
                 if !ready_sent {
                     notify(&[sd_notify::NotifyState::Ready]);
                     ready_sent = true;
@@ -352,8 +365,9 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                             p.tick(clock.now_s() - HOLD_BACK_S, &mut sink);
                         }
                         _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
-                        _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats),
-                        _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats),
+                        _ = publish_every.tick() => publisher.publish(&p, &stats, reference, true),
+                        _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
+                        _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
                     }
                 }
                 backoff = (backoff * 2).min(Duration::from_secs(5));
@@ -395,9 +409,7 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                     }
                     if p.dirty {
                         p.dirty = false;
-                        if let Err(e) = state::save(&state_path, &persisted(&p, reference)) {
-                            tracing::error!(path = %state_path.display(), "cannot save state: {e}");
-                        }
+                        save_state(&p, &state_path, reference, &mut publisher.last_save);
                     }
                 }
                 _ = tick.tick() => {
@@ -420,11 +432,13 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                         last_status = Some(st);
                     }
                 }
-                _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats),
-                _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats),
+                _ = publish_every.tick() => publisher.publish(&p, &stats, reference, true),
+                _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
+                _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
             }
         };
         tracing::warn!("CAN lost ({reason}); reconnecting");
+        publisher.can = format!("lost: {reason}");
         notify(&[sd_notify::NotifyState::Status(&format!(
             "CAN lost: {reason}; reconnecting"
         ))]);
@@ -462,18 +476,78 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
     })
 }
 
-fn shutdown(p: &Pipeline, path: &Path, reference: Option<f64>, live: &LiveStats) -> Result<i32> {
+/// Save the state file and remember how it went for the status report.
+fn save_state(
+    p: &Pipeline,
+    path: &Path,
+    reference: Option<f64>,
+    last: &mut Option<SaveInfo>,
+) -> bool {
+    let r = state::save(path, &persisted(p, reference));
+    if let Err(e) = &r {
+        tracing::error!(path = %path.display(), "cannot save state: {e}");
+    }
+    *last = Some(SaveInfo {
+        unix_s: status::unix_now_s(),
+        ok: r.is_ok(),
+        error: r.err().map(|e| e.to_string()),
+    });
+    last.as_ref().is_some_and(|s| s.ok)
+}
+
+/// What `leveld status` reads, published from the timer.
+struct Publisher {
+    path: PathBuf,
+    state_path: PathBuf,
+    started_unix_s: f64,
+    last_save: Option<SaveInfo>,
+    can: String,
+    warned: bool,
+}
+
+impl Publisher {
+    fn publish(&mut self, p: &Pipeline, live: &LiveStats, reference: Option<f64>, running: bool) {
+        if self.path.as_os_str().is_empty() {
+            return;
+        }
+        let cx = status::Context {
+            started_unix_s: self.started_unix_s,
+            running,
+            reference_pitch_deg: reference,
+            can: &self.can,
+            state_path: &self.state_path,
+            last_save: self.last_save.as_ref(),
+        };
+        let r = status::report(p, live, &cx);
+        match status::publish(&self.path, &r) {
+            Ok(()) => self.warned = false,
+            Err(e) if !self.warned => {
+                tracing::warn!(path = %self.path.display(), "cannot publish the status for `leveld status` ({e}); the folder must exist (RuntimeDirectory=leveld)");
+                self.warned = true;
+            }
+            Err(_) => {}
+        }
+    }
+}
+
+fn shutdown(
+    p: &Pipeline,
+    path: &Path,
+    reference: Option<f64>,
+    live: &LiveStats,
+    publisher: &mut Publisher,
+) -> Result<i32> {
     notify(&[sd_notify::NotifyState::Stopping]);
     tracing::info!("final stats {}", stats_json(p, live));
-    match state::save(path, &persisted(p, reference)) {
-        Ok(()) => {
-            tracing::info!(path = %path.display(), status = ?p.status(), "state saved; exiting");
-            Ok(0)
-        }
-        Err(e) => {
-            tracing::error!(path = %path.display(), "cannot save state at shutdown: {e}");
-            Ok(1)
-        }
+    let ok = save_state(p, path, reference, &mut publisher.last_save);
+    publisher.can = "closed: stopped".into();
+    publisher.publish(p, live, reference, false);
+    if ok {
+        tracing::info!(path = %path.display(), status = ?p.status(), "state saved; exiting");
+        Ok(0)
+    } else {
+        tracing::error!(path = %path.display(), "cannot save state at shutdown");
+        Ok(1)
     }
 }
 

@@ -8,6 +8,7 @@ pub mod live;
 pub mod pipeline;
 pub mod replay;
 pub mod state;
+pub mod status;
 
 use crate::can::dbc::Database;
 use anyhow::{Context, Result};

@@ -10,13 +10,13 @@ use crate::can::dbc::{Database, DbcError};
 use crate::can::signal::SignalCodec;
 use crate::estimator::{Estimate, Estimator, EstimatorState, Event, ImuSample, WheelSpeeds};
 use crc::{CRC_8_AUTOSAR, CRC_8_SAE_J1850, Crc};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 const J1850: Crc<u8> = Crc::<u8>::new(&CRC_8_SAE_J1850);
 const AUTOSAR: Crc<u8> = Crc::<u8>::new(&CRC_8_AUTOSAR);
 
 /// Value of the LEVELING `Status` signal.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "SCREAMING_SNAKE_CASE")]
 pub enum Status {
     NoEstimate = 0,
@@ -442,6 +442,18 @@ impl Pipeline {
 
     pub fn stats(&self, slot: usize) -> MsgStats {
         self.st[slot].stats
+    }
+
+    /// `ok`, `lost` (timed out) or `invalid` (failing its counter or checksum checks).
+    pub fn input_state(&self, slot: usize) -> &'static str {
+        let s = &self.st[slot];
+        if s.lost {
+            "lost"
+        } else if s.invalid {
+            "invalid"
+        } else {
+            "ok"
+        }
     }
 
     pub fn input_codec(&self, slot: usize) -> &MsgCodec {

@@ -35,21 +35,36 @@ pub enum Loaded {
 
 /// Load the state file; a bad file is moved aside (`<name>.corrupt-<n>`).
 pub fn load(path: &Path) -> Loaded {
-    let bytes = match std::fs::read(path) {
-        Ok(b) => b,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Loaded::Missing,
-        Err(e) => {
-            return Loaded::Corrupt {
-                reason: format!("cannot read {}: {e}", path.display()),
+    match std::fs::read(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Loaded::Missing,
+        Err(e) => Loaded::Corrupt {
+            reason: format!("cannot read {}: {e}", path.display()),
+            moved_to: None,
+        },
+        Ok(bytes) => match parse(&bytes) {
+            Ok(st) => Loaded::State(Box::new(st)),
+            Err(reason) => Loaded::Corrupt {
+                moved_to: move_aside(path),
+                reason,
+            },
+        },
+    }
+}
+
+/// Read the state file and leave it where it is, whatever it holds.
+pub fn read(path: &Path) -> Loaded {
+    match std::fs::read(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Loaded::Missing,
+        Err(e) => Loaded::Corrupt {
+            reason: format!("cannot read {}: {e}", path.display()),
+            moved_to: None,
+        },
+        Ok(bytes) => match parse(&bytes) {
+            Ok(st) => Loaded::State(Box::new(st)),
+            Err(reason) => Loaded::Corrupt {
+                reason,
                 moved_to: None,
-            };
-        }
-    };
-    match parse(&bytes) {
-        Ok(st) => Loaded::State(Box::new(st)),
-        Err(reason) => Loaded::Corrupt {
-            moved_to: move_aside(path),
-            reason,
+            },
         },
     }
 }

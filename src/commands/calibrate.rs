@@ -1,0 +1,48 @@
+//! `leveld calibrate`: end-of-line calibration from the bus or a log.
+
+use anyhow::Result;
+
+/// `leveld calibrate`.
+pub fn run(
+    config: Option<&std::path::Path>,
+    log: Option<&std::path::Path>,
+    interface: Option<&str>,
+    duration_s: f64,
+    state: Option<&std::path::Path>,
+    dry_run: bool,
+) -> Result<i32> {
+    use crate::daemon::{calibrate, pipeline::Pipeline};
+    use anyhow::{Context, bail};
+    calibrate::check_duration(duration_s)?;
+    let (cfg, db, _) = crate::daemon::load(config)?;
+    let mut p = Pipeline::new(&cfg, &db)?;
+    let cal = match log {
+        Some(path) => {
+            let f = std::fs::File::open(path)
+                .with_context(|| format!("cannot open log {}", path.display()))?;
+            calibrate::from_log(
+                &mut p,
+                &mut std::io::BufReader::new(f),
+                interface,
+                duration_s,
+            )?
+        }
+        None => crate::daemon::live::calibrate_live(&cfg, &mut p, duration_s)?,
+    };
+    if cal.reference_pitch_deg.abs() > 10.0 {
+        bail!(
+            "measured pitch {:+.2} deg is implausible for a level floor; check the IMU mounting and axes",
+            cal.reference_pitch_deg
+        );
+    }
+    println!(
+        "reference pitch {:+.3} deg from {:.1} s of standstill",
+        cal.reference_pitch_deg, cal.settled_s
+    );
+    if !dry_run {
+        let path = state.map_or_else(|| cfg.state.path.clone(), |p| p.to_path_buf());
+        calibrate::store(&mut p, &path, &cal)?;
+        println!("stored in {}", path.display());
+    }
+    Ok(0)
+}
