@@ -1,6 +1,6 @@
 //! Command-line interface.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -102,9 +102,10 @@ pub enum Command {
         #[arg(value_enum)]
         shell: Shell,
     },
-    /// Print the man page (roff).
+    /// Print the man page (roff); with a directory, write leveld.1 and one page per
+    /// subcommand (leveld-status.1, ...) there.
     #[command(hide = true)]
-    Man,
+    Man { dir: Option<PathBuf> },
     /// Benchmarks.
     #[cfg(feature = "sim")]
     Bench {
@@ -152,11 +153,17 @@ pub enum SimulateCmd {
         /// A named drive (multi-stop, load-change).
         #[arg(long, default_value = "multi-stop", conflicts_with = "scenario")]
         preset: String,
-        /// A scenario file (TOML) instead of a preset.
+        /// A scenario file instead of a preset: a benchmark drive (`scenarios/*.toml`,
+        /// `scenarios/realistic/*.toml`) or a simulator scenario (TOML).
         #[arg(long)]
         scenario: Option<std::path::PathBuf>,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        /// Load case of a benchmark drive (its `loads` names; default the first).
+        #[arg(long, requires = "scenario")]
+        load: Option<String>,
+        /// Seed; a benchmark drive's own seed when not given (the `--seeds N` of
+        /// `leveld bench accuracy` are its seed, seed + 1, ...).
+        #[arg(long)]
+        seed: Option<u64>,
         /// candump log to write (`-` for standard output).
         #[arg(long, short)]
         output: std::path::PathBuf,
@@ -234,9 +241,13 @@ pub fn run(cli: Cli) -> Result<i32> {
             clap_complete::generate(shell, &mut cmd, "leveld", &mut std::io::stdout());
             Ok(0)
         }
-        Command::Man => {
+        Command::Man { dir } => {
             let cmd = <Cli as clap::CommandFactory>::command();
-            clap_mangen::Man::new(cmd).render(&mut std::io::stdout())?;
+            match dir {
+                Some(dir) => clap_mangen::generate_to(cmd, &dir)
+                    .with_context(|| format!("writing man pages to {}", dir.display()))?,
+                None => clap_mangen::Man::new(cmd).render(&mut std::io::stdout())?,
+            }
             Ok(0)
         }
         #[cfg(feature = "sim")]
@@ -262,6 +273,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             SimulateCmd::Drive {
                 preset,
                 scenario,
+                load,
                 seed,
                 output,
                 truth,
@@ -272,6 +284,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 commands::simulate::drive(
                     &preset,
                     scenario.as_deref(),
+                    load.as_deref(),
                     seed,
                     &output,
                     truth.as_deref(),

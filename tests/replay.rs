@@ -338,3 +338,31 @@ for line in open(sys.argv[2]):
         }
     }
 }
+
+#[test]
+fn simulate_drive_writes_a_benchmark_scenario_and_names_its_load_cases() {
+    let dir = std::env::temp_dir().join(format!("leveld-simdrive-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("sg.log");
+    let sim = |load: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_leveld"))
+            .current_dir(root())
+            .args(["simulate", "drive", "--scenario", "scenarios/realistic/stop-and-go.toml"])
+            .args(["--load", load, "--interface", "can0", "-o"])
+            .arg(&log)
+            .output()
+            .unwrap()
+    };
+    let ok = sim("5P");
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    let text = std::fs::read_to_string(&log).unwrap();
+    // The three configured inputs are all in the log.
+    for id in [" can0 386#", " can0 3E0#", " can0 3E1#"] {
+        assert!(text.contains(id), "no {id} frames");
+    }
+    let bad = sim("7P");
+    assert!(!bad.status.success());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("no load case `7P`") && err.contains("1P, 5P"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

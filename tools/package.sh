@@ -10,7 +10,9 @@ command -v cargo-deb >/dev/null || cargo install --locked cargo-deb
 cargo build --profile deb --no-default-features
 bin=target/deb/leveld
 mkdir -p target/package
-"$bin" man | gzip -9n > target/package/leveld.1.gz
+rm -rf target/package/man && mkdir -p target/package/man
+"$bin" man target/package/man
+gzip -9n target/package/man/*.1
 "$bin" completions bash > target/package/leveld.bash
 "$bin" completions zsh > target/package/_leveld
 "$bin" completions fish > target/package/leveld.fish

@@ -168,7 +168,8 @@ fn write_table(out: &mut impl Write, rows: &[Row]) -> Result<()> {
 pub fn drive(
     preset: &str,
     scenario: Option<&std::path::Path>,
-    seed: u64,
+    load: Option<&str>,
+    seed: Option<u64>,
     output: &std::path::Path,
     truth: Option<&std::path::Path>,
     iface: &str,
@@ -180,12 +181,43 @@ pub fn drive(
         Some(p) => {
             let text = std::fs::read_to_string(p)
                 .with_context(|| format!("cannot read scenario {}", p.display()))?;
-            let mut sc: crate::sim::Scenario = toml::from_str(&text)
-                .with_context(|| format!("scenario {} is not valid", p.display()))?;
-            sc.seed = seed;
-            sc
+            let table: toml::Table = toml::from_str(&text)
+                .with_context(|| format!("scenario {} is not valid TOML", p.display()))?;
+            if table.contains_key("loads") {
+                let mut spec = crate::bench::suite::DriveSpec::parse(&text)
+                    .with_context(|| format!("benchmark drive {} is not valid", p.display()))?;
+                if let Some(seed) = seed {
+                    spec.seed = seed;
+                }
+                let cases = spec.cases();
+                let names: Vec<&str> = cases.iter().map(|c| c.load.as_str()).collect();
+                let case = match load {
+                    None => cases.first(),
+                    Some(l) => cases.iter().find(|c| c.load == l),
+                };
+                match case {
+                    Some(c) => c.scenario.clone(),
+                    None => bail!(
+                        "{} has no load case `{}`; choose one of: {}",
+                        p.display(),
+                        load.unwrap_or(""),
+                        names.join(", ")
+                    ),
+                }
+            } else {
+                if load.is_some() {
+                    bail!(
+                        "--load needs a benchmark drive (a file with `loads`); {} is a simulator scenario",
+                        p.display()
+                    );
+                }
+                let mut sc: crate::sim::Scenario = toml::from_str(&text)
+                    .with_context(|| format!("scenario {} is not valid", p.display()))?;
+                sc.seed = seed.unwrap_or(1);
+                sc
+            }
         }
-        None => match crate::sim::presets::preset(preset, seed) {
+        None => match crate::sim::presets::preset(preset, seed.unwrap_or(1)) {
             Some(sc) => sc,
             None => bail!(
                 "unknown preset `{preset}`; choose one of: {}",
