@@ -9,6 +9,7 @@ as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 need_apt=()
 command -v python3 >/dev/null || need_apt+=(python3 python3-pip)
 command -v systemd-analyze >/dev/null || need_apt+=(systemd)
+command -v man >/dev/null || need_apt+=(man-db)
 [ -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ] || need_apt+=(fonts-dejavu-core)
 if [ ${#need_apt[@]} -gt 0 ]; then
   as_root apt-get update -qq
@@ -43,3 +44,11 @@ for line in sys.stdin:
 ')
 [ -n "$bin" ] || { echo "cannot build the vcan test binary" >&2; exit 1; }
 tools/vcan-vm.sh "$bin" --ignored --test-threads=1
+
+echo "== package: the .deb built and checked under real systemd (VM with systemd as PID 1)"
+tools/package.sh
+deb=$(ls -t target/debian/leveld_*.deb | head -n 1)
+# A 45 s simulated drive on can0 that gives the daemon an estimate to save and resume.
+cargo run -q -- simulate drive --preset short --interface can0 --output target/package/vm-drive-full.log
+awk '{ t = substr($1, 2, length($1) - 2) + 0; if (t < 1045) print }' target/package/vm-drive-full.log > target/package/vm-drive.log
+LEVELD_VM_SYSTEMD=1 tools/vcan-vm.sh tests/systemd/unit-checks.sh "$deb" target/package/vm-drive.log

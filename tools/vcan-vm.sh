@@ -1,7 +1,13 @@
 #!/usr/bin/env bash
-# Run a command with SocketCAN (vcan0, vcan1 available) and report its exit status.
+# Run a command where SocketCAN works (the vcan module is loaded) and report its exit status.
 #
 #   tools/vcan-vm.sh COMMAND [ARGS...]
+#   LEVELD_VM_SYSTEMD=1 tools/vcan-vm.sh COMMAND [ARGS...]
+#
+# With LEVELD_VM_SYSTEMD=1 the VM always runs (never this machine: the command may
+# install packages and start services) and boots systemd as PID 1 on a writable
+# overlay of this machine's root; the command runs as a oneshot service once the
+# system is up, with a vcan named can0.
 #
 # If this machine's kernel can create vcan interfaces, the command runs here. If not
 # (kernels built without CAN), it runs inside a small qemu VM under software
@@ -15,7 +21,7 @@ set -euo pipefail
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 
 # Direct path: the kernel has vcan.
-if as_root ip link add dev leveldprobe0 type vcan 2>/dev/null; then
+if [ -z "${LEVELD_VM_SYSTEMD:-}" ] && as_root ip link add dev leveldprobe0 type vcan 2>/dev/null; then
   as_root ip link del leveldprobe0
   echo "vcan-vm: host kernel has vcan; running directly" >&2
   exec "$@"
@@ -57,7 +63,7 @@ if [ ! -f "$initrd" ] || [ "$0" -nt "$initrd" ]; then
   work=$(mktemp -d)
   mkdir -p "$work"/{bin,dev,proc,sys,host,lib/modules}
   cp "$busybox" "$work/bin/busybox"
-  order="can can-dev can-raw vcan virtio_ring virtio virtio_pci_modern_dev virtio_pci_legacy_dev virtio_pci 9pnet 9pnet_virtio netfs fscache 9p"
+  order="can can-dev can-raw vcan virtio_ring virtio virtio_pci_modern_dev virtio_pci_legacy_dev virtio_pci 9pnet 9pnet_virtio netfs fscache 9p overlay"
   : > "$work/modules.order"
   for m in $order; do
     f=$(find "$mods" -name "$m.ko*" | head -n 1)
@@ -77,6 +83,29 @@ mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
 for m in $(cat /modules.order); do insmod /lib/modules/$m.ko 2>/dev/null; done
 out=$(sed -n 's/.*leveld.out=\([^ ]*\).*/\1/p' /proc/cmdline)
+ip link set lo up
+if grep -q 'leveld.systemd=1' /proc/cmdline; then
+  # systemd as PID 1 on an overlay: this machine's root read-only below, tmpfs above.
+  mkdir -p /lower /rw /newroot
+  mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 host /lower || echo "vcan-vm: 9p root mount failed"
+  mount -t tmpfs -o mode=0755 rw /rw
+  mkdir -p /rw/upper /rw/work
+  mount -t overlay overlay -o lowerdir=/lower,upperdir=/rw/upper,workdir=/rw/work /newroot || echo "vcan-vm: overlay mount failed"
+  mkdir -p "/newroot$out"
+  mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 out "/newroot$out" || echo "vcan-vm: 9p out mount failed"
+  ip link add dev can0 type vcan && ip link set up can0
+  u=/newroot/etc/systemd/system
+  mkdir -p "$u"
+  printf '%s\n' '[Unit]' 'Description=leveld VM test' 'After=basic.target' \
+    'SuccessAction=poweroff-force' 'FailureAction=poweroff-force' \
+    '[Service]' 'Type=oneshot' "ExecStart=/bin/sh $out/run.sh" 'StandardOutput=journal+console' \
+    'TimeoutStartSec=infinity' > "$u/leveld-vmtest.service"
+  : > /newroot/etc/machine-id
+  mount --move /proc /newroot/proc 2>/dev/null || umount /proc
+  mount --move /sys /newroot/sys 2>/dev/null || umount /sys
+  mount --move /dev /newroot/dev 2>/dev/null || true
+  exec switch_root /newroot /lib/systemd/systemd systemd.unit=leveld-vmtest.service systemd.show_status=1
+fi
 mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 host /host || echo "vcan-vm: 9p root mount failed"
 # Scratch space on /run; /tmp stays the host's, where the work tree may live.
 mount -t tmpfs run /host/run
@@ -86,7 +115,6 @@ mount -o bind /proc /host/proc
 mount -o bind /sys /host/sys
 mount -o bind /dev /host/dev
 mkdir -p /host/dev/pts 2>/dev/null; mount -t devpts pts /host/dev/pts 2>/dev/null
-ip link set lo up
 chroot /host /bin/sh "$out/run.sh"
 echo "vcan-vm: exit status $?"
 poweroff -f
@@ -102,6 +130,7 @@ out=$(realpath "$out")
 {
   echo "set -u"
   echo "export PATH='$PATH' HOME=/root LANG=C.UTF-8 LEVELD_IN_VM=1 TMPDIR=/run/leveld-tmp"
+  echo "mkdir -p /run/leveld-tmp"
   for v in RUST_BACKTRACE LEVELD_LOG CARGO_MANIFEST_DIR; do
     [ -n "${!v:-}" ] && printf 'export %s=%q\n' "$v" "${!v}"
   done
@@ -117,7 +146,7 @@ timeout "${LEVELD_VM_TIMEOUT:-1500}" qemu-system-x86_64 -accel tcg -cpu max -smp
   -nographic -no-reboot -kernel "$vmlinuz" -initrd "$initrd" \
   -virtfs local,path=/,mount_tag=host,security_model=none,readonly=on,multidevs=remap \
   -virtfs "local,path=$out,mount_tag=out,security_model=none" \
-  -append "console=ttyS0 quiet panic=-1 leveld.out=$out" > "$out/console" 2>&1 || true
+  -append "console=ttyS0 quiet panic=-1 leveld.out=$out${LEVELD_VM_SYSTEMD:+ leveld.systemd=1}" > "$out/console" 2>&1 || true
 
 cat "$out/stdout" 2>/dev/null || true
 if [ ! -f "$out/status" ]; then
