@@ -347,14 +347,23 @@ fn simulate_drive_writes_a_benchmark_scenario_and_names_its_load_cases() {
     let sim = |load: &str| {
         std::process::Command::new(env!("CARGO_BIN_EXE_leveld"))
             .current_dir(root())
-            .args(["simulate", "drive", "--scenario", "scenarios/realistic/stop-and-go.toml"])
+            .args([
+                "simulate",
+                "drive",
+                "--scenario",
+                "scenarios/realistic/stop-and-go.toml",
+            ])
             .args(["--load", load, "--interface", "can0", "-o"])
             .arg(&log)
             .output()
             .unwrap()
     };
     let ok = sim("5P");
-    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
     let text = std::fs::read_to_string(&log).unwrap();
     // The three configured inputs are all in the log.
     for id in [" can0 386#", " can0 3E0#", " can0 3E1#"] {
@@ -363,6 +372,9 @@ fn simulate_drive_writes_a_benchmark_scenario_and_names_its_load_cases() {
     let bad = sim("7P");
     assert!(!bad.status.success());
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(err.contains("no load case `7P`") && err.contains("1P, 5P"), "{err}");
+    assert!(
+        err.contains("no load case `7P`") && err.contains("1P, 5P"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
