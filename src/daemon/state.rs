@@ -35,24 +35,16 @@ pub enum Loaded {
 
 /// Load the state file; a bad file is moved aside (`<name>.corrupt-<n>`).
 pub fn load(path: &Path) -> Loaded {
-    match std::fs::read(path) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Loaded::Missing,
-        Err(e) => Loaded::Corrupt {
-            reason: format!("cannot read {}: {e}", path.display()),
-            moved_to: None,
-        },
-        Ok(bytes) => match parse(&bytes) {
-            Ok(st) => Loaded::State(Box::new(st)),
-            Err(reason) => Loaded::Corrupt {
-                moved_to: move_aside(path),
-                reason,
-            },
-        },
-    }
+    read_then(path, move_aside)
 }
 
 /// Read the state file and leave it where it is, whatever it holds.
 pub fn read(path: &Path) -> Loaded {
+    read_then(path, |_| None)
+}
+
+/// Read and parse; a file that does not parse is handed to `bad`, which says where it went.
+fn read_then(path: &Path, bad: impl FnOnce(&Path) -> Option<PathBuf>) -> Loaded {
     match std::fs::read(path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Loaded::Missing,
         Err(e) => Loaded::Corrupt {
@@ -62,8 +54,8 @@ pub fn read(path: &Path) -> Loaded {
         Ok(bytes) => match parse(&bytes) {
             Ok(st) => Loaded::State(Box::new(st)),
             Err(reason) => Loaded::Corrupt {
+                moved_to: bad(path),
                 reason,
-                moved_to: None,
             },
         },
     }
@@ -187,6 +179,21 @@ mod tests {
         s.format = 99;
         std::fs::write(&p, serde_json::to_vec(&s).unwrap()).unwrap();
         assert!(matches!(load(&p), Loaded::Corrupt { .. }));
+    }
+
+    #[test]
+    fn read_reports_a_bad_file_and_leaves_it_in_place() {
+        let d = tmpdir("read");
+        let p = d.join("state.json");
+        std::fs::write(&p, b"{ half").unwrap();
+        match read(&p) {
+            Loaded::Corrupt {
+                reason,
+                moved_to: None,
+            } => assert!(reason.contains("not valid state JSON"), "{reason}"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(std::fs::read(&p).unwrap(), b"{ half");
     }
 
     #[test]
