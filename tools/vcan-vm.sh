@@ -93,6 +93,10 @@ if grep -q 'leveld.systemd=1' /proc/cmdline; then
   mount -t overlay overlay -o lowerdir=/lower,upperdir=/rw/upper,workdir=/rw/work /newroot || echo "vcan-vm: overlay mount failed"
   mkdir -p "/newroot$out"
   mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 out "/newroot$out" || echo "vcan-vm: 9p out mount failed"
+  # The work tree at its own path, whatever systemd mounts over its parents (/tmp).
+  work=$(sed -n 's/.*leveld.work=\([^ ]*\).*/\1/p' /proc/cmdline)
+  mkdir -p "/newroot$work"
+  mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288,ro work "/newroot$work" || echo "vcan-vm: 9p work mount failed"
   ip link add dev can0 type vcan && ip link set up can0
   u=/newroot/etc/systemd/system
   mkdir -p "$u"
@@ -146,7 +150,8 @@ timeout "${LEVELD_VM_TIMEOUT:-1500}" qemu-system-x86_64 -accel tcg -cpu max -smp
   -nographic -no-reboot -kernel "$vmlinuz" -initrd "$initrd" \
   -virtfs local,path=/,mount_tag=host,security_model=none,readonly=on,multidevs=remap \
   -virtfs "local,path=$out,mount_tag=out,security_model=none" \
-  -append "console=ttyS0 quiet panic=-1 leveld.out=$out${LEVELD_VM_SYSTEMD:+ leveld.systemd=1}" > "$out/console" 2>&1 || true
+  -virtfs "local,path=$PWD,mount_tag=work,security_model=none,readonly=on,multidevs=remap" \
+  -append "console=ttyS0 quiet panic=-1 leveld.out=$out leveld.work=$PWD${LEVELD_VM_SYSTEMD:+ leveld.systemd=1}" > "$out/console" 2>&1 || true
 
 cat "$out/stdout" 2>/dev/null || true
 if [ ! -f "$out/status" ]; then
