@@ -91,28 +91,39 @@ struct Kin {
 }
 
 /// Commanded longitudinal acceleration at time `t` with the driver's ramps: each change
-/// of the profile is spread linearly over `ramp_s` centred on it (the speed reached
-/// after the ramp is unchanged), except where braking ends at rest, which stays a step.
+/// of the profile is spread linearly over `ramp_s` centred on it, except where braking
+/// ends at rest, which stays a step. A ramp is narrowed to half of each segment it
+/// touches, so ramps never overlap and every segment keeps its speed change: a stop
+/// planned at rest is at rest (a creep of 0.1 s segments does not leave the car rolling).
 fn ramped_accel(segs: &[super::scenario::SpeedSegment], ramp_s: f64, t: f64) -> f64 {
+    let ramps = |a: f64, b: f64| ramp_s > 0.0 && !(a < 0.0 && b == 0.0) && a != b;
+    let half_between = |d0: f64, d1: f64| (0.5 * ramp_s).min(0.5 * d0).min(0.5 * d1);
     let mut t0 = 0.0;
-    let mut prev = 0.0;
+    let mut prev: Option<&super::scenario::SpeedSegment> = None;
     for (i, sg) in segs.iter().enumerate() {
         let t1 = t0 + sg.duration_s;
-        let next = segs.get(i + 1).map_or(0.0, |n| n.accel_mps2);
-        let half = 0.5 * ramp_s;
-        let ramps = |a: f64, b: f64| ramp_s > 0.0 && !(a < 0.0 && b == 0.0) && a != b;
         if t < t1 || i + 1 == segs.len() {
-            if ramps(prev, sg.accel_mps2) && t < t0 + half && i > 0 {
-                let x = (t - (t0 - half)) / ramp_s;
-                return prev + (sg.accel_mps2 - prev) * x;
+            if let Some(p) = prev
+                && ramps(p.accel_mps2, sg.accel_mps2)
+            {
+                let half = half_between(p.duration_s, sg.duration_s);
+                if half > 0.0 && t < t0 + half {
+                    let x = (t - (t0 - half)) / (2.0 * half);
+                    return p.accel_mps2 + (sg.accel_mps2 - p.accel_mps2) * x;
+                }
             }
-            if ramps(sg.accel_mps2, next) && t > t1 - half && i + 1 < segs.len() {
-                let x = (t - (t1 - half)) / ramp_s;
-                return sg.accel_mps2 + (next - sg.accel_mps2) * x;
+            if let Some(n) = segs.get(i + 1)
+                && ramps(sg.accel_mps2, n.accel_mps2)
+            {
+                let half = half_between(sg.duration_s, n.duration_s);
+                if half > 0.0 && t > t1 - half {
+                    let x = (t - (t1 - half)) / (2.0 * half);
+                    return sg.accel_mps2 + (n.accel_mps2 - sg.accel_mps2) * x;
+                }
             }
             return if t < t1 { sg.accel_mps2 } else { 0.0 };
         }
-        prev = sg.accel_mps2;
+        prev = Some(sg);
         t0 = t1;
     }
     0.0
@@ -368,5 +379,51 @@ fn wheel_speeds(
     WheelSpeeds {
         t_s: t,
         kmh: [l, r, l, r],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ramped_accel;
+    use crate::sim::scenario::SpeedProfile;
+
+    /// Speed in the middle of each segment, integrating the ramped acceleration finely.
+    fn speeds_mid_segment(p: &SpeedProfile, ramp_s: f64) -> Vec<f64> {
+        let h = 1e-4;
+        let (mut t, mut v, mut out, mut start) = (0.0, 0.0, Vec::new(), 0.0);
+        for sg in &p.segments {
+            let mid = start + 0.5 * sg.duration_s;
+            while t + h <= mid + 1e-12 {
+                let a = ramped_accel(&p.segments, ramp_s, t);
+                v += 0.5 * (a + ramped_accel(&p.segments, ramp_s, t + h)) * h;
+                t += h;
+            }
+            out.push(v);
+            start += sg.duration_s;
+        }
+        out
+    }
+
+    #[test]
+    fn ramps_keep_every_segments_speed_change_even_for_short_segments() {
+        // A stop with a creep of 0.1 s segments (shorter than the 0.5 s ramp), a drive
+        // off, a cruise, a brake to rest: every hold is at its planned speed.
+        let p = SpeedProfile::default()
+            .hold(2.0)
+            .accel(0.5, 0.1)
+            .accel(-0.5, 0.1)
+            .hold(3.0)
+            .accel(1.0, 4.0)
+            .hold(5.0)
+            .accel(-2.0, 2.0)
+            .hold(3.0);
+        let v = speeds_mid_segment(&p, 0.5);
+        for (k, want) in [(0, 0.0), (3, 0.0), (5, 4.0), (7, 0.0)] {
+            assert!(
+                (v[k] - want).abs() < 1e-3,
+                "hold {k}: {} m/s, planned {want}",
+                v[k]
+            );
+        }
     }
 }
