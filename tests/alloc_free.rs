@@ -5,7 +5,8 @@
 #![allow(unsafe_code)]
 
 use leveld::can::candump::{Line, LogFrame, parse_line};
-use leveld::daemon::pipeline::{Notice, Pipeline, Sink};
+use leveld::daemon::pipeline::Pipeline;
+use leveld::daemon::sink::{Notice, Sink};
 use leveld::estimator::Event;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

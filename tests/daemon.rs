@@ -2,8 +2,10 @@
 //! garbage frames, the systemd hardening bar.
 
 use leveld::can::candump::{Line, parse_line};
+use leveld::can::codec::Status;
 use leveld::daemon::config::Config;
-use leveld::daemon::pipeline::{Notice, Pipeline, Sink, Status};
+use leveld::daemon::pipeline::Pipeline;
+use leveld::daemon::sink::{Notice, Sink};
 use leveld::estimator::Event;
 use leveld::sim::canlog::{InputEncoder, write_candump};
 use leveld::sim::{Road, Scenario, Sensors, SpeedProfile, Vehicle};
@@ -316,7 +318,7 @@ fn bad_crc_wrong_dlc_and_unknown_ids_are_counted_and_not_used() {
     let gyr = p.stats(2);
     assert_eq!(acc.checksum_errors, bad_crc);
     assert_eq!(gyr.dlc_errors, bad_dlc);
-    assert_eq!(p.ignored_frames, unknown);
+    assert_eq!(p.counters().ignored_frames, unknown);
     // Isolated bad frames do not invalidate the message and the drive still converges.
     assert!(p.estimate().is_some());
     assert_eq!(p.status(), Status::Valid, "{:?}", p.estimate());
@@ -401,7 +403,7 @@ fn an_unusable_estimator_state_keeps_the_calibration_and_the_file() {
     let path = d.join("state.json");
     let mut st = leveld::daemon::state::PersistedState {
         format: leveld::daemon::state::PersistedState::FORMAT,
-        estimator: pipeline().est.state(),
+        estimator: pipeline().estimator_state(),
         reference_pitch_deg: Some(0.37),
     };
     st.estimator.format = 99; // written by another version

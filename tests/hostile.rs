@@ -1,8 +1,9 @@
 //! Hostile input and hostile clocks: each reproducer of a defect found by mutating
 //! logs, configs and timestamps, kept as a regression test.
 
+use leveld::can::codec::Status;
 use leveld::daemon::config::Config;
-use leveld::daemon::pipeline::{Pipeline, Status};
+use leveld::daemon::pipeline::Pipeline;
 use leveld::daemon::replay::{ReplayOptions, Summary, replay};
 use std::path::{Path, PathBuf};
 

@@ -2,7 +2,8 @@
 //! with truth, and bad input.
 
 use leveld::can::candump::{Line, parse_line};
-use leveld::daemon::pipeline::{Pipeline, Status};
+use leveld::can::codec::Status;
+use leveld::daemon::pipeline::Pipeline;
 use leveld::daemon::replay::{ReplayOptions, Summary, replay};
 use leveld::sim::canlog::{InputEncoder, write_candump};
 use std::path::{Path, PathBuf};

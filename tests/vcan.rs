@@ -9,7 +9,7 @@
 #![allow(unsafe_code)]
 
 use leveld::can::candump::{CandumpLine, Line, LogFrame, parse_line};
-use leveld::daemon::pipeline::{Leveling, OutputCodec, Status};
+use leveld::can::codec::{LevelingFrame as Leveling, OutputCodec, Status};
 use leveld::sim::canlog::{InputEncoder, write_candump};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

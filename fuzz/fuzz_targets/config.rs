@@ -14,7 +14,7 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(cfg) = Config::parse(Path::new("config/leveld.toml"), text) {
         let db = Database::parse(Path::new("leveld.dbc"), leveld::daemon::DEFAULT_DBC).unwrap();
         if let Ok(mut p) = Pipeline::new(&cfg, &db) {
-            let mut sink = leveld::daemon::pipeline::NullSink;
+            let mut sink = leveld::daemon::sink::NullSink;
             for k in 0..50 {
                 for (id, ext) in p.input_ids() {
                     p.on_frame(k as f64 * 0.01, id, ext, &[0; 8], &mut sink);

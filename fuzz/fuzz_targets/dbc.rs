@@ -12,7 +12,7 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(db) = Database::parse(Path::new("fuzz.dbc"), &text) {
         let cfg = Config::parse(Path::new("config/leveld.toml"), DEFAULT_TOML).unwrap();
         if let Ok(mut p) = Pipeline::new(&cfg, &db) {
-            let mut sink = leveld::daemon::pipeline::NullSink;
+            let mut sink = leveld::daemon::sink::NullSink;
             for (i, (id, ext)) in p.input_ids().into_iter().enumerate() {
                 p.on_frame(i as f64 * 0.01, id, ext, &[0xA5; 8], &mut sink);
             }

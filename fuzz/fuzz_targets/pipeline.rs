@@ -1,7 +1,8 @@
 //! Arbitrary frames with arbitrary timestamps through the reference pipeline: no panic,
 //! no hang, and time never runs backwards in what it sends.
 #![no_main]
-use leveld::daemon::pipeline::{Notice, Pipeline, Sink};
+use leveld::daemon::pipeline::Pipeline;
+use leveld::daemon::sink::{Notice, Sink};
 use leveld::estimator::Event;
 use libfuzzer_sys::fuzz_target;
 

@@ -2,6 +2,7 @@
 
 pub mod candump;
 pub mod checks;
+pub mod codec;
 pub mod dbc;
 pub mod signal;
 

@@ -5,7 +5,8 @@ use std::io::Write;
 
 /// `leveld check-config`.
 pub fn run(config: Option<&std::path::Path>) -> Result<i32> {
-    use crate::daemon::pipeline::{ACC, GYR, Pipeline, WHEELS};
+    use crate::daemon::inputs::{ACC, GYR, WHEELS};
+    use crate::daemon::pipeline::Pipeline;
     let (cfg, db, src) = crate::daemon::load(config)?;
     let p = Pipeline::new(&cfg, &db)?;
     let mut out = std::io::stdout().lock();

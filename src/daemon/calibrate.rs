@@ -5,7 +5,8 @@
 //! requested time; the result is stored in the state file as the reference pitch and
 //! seeds the estimate.
 
-use super::pipeline::{Notice, Pipeline, Sink};
+use super::pipeline::Pipeline;
+use super::sink::{Notice, Sink};
 use super::state::{self, Loaded, PersistedState};
 use crate::can::candump::{Line, ReadLine, parse_bytes, read_line};
 use crate::estimator::Event;
@@ -58,7 +59,7 @@ pub fn from_log(
             && !f.fd
         {
             p.on_can_frame(f.t_s, &f, &mut Quiet);
-            if let Some((pitch, settled)) = p.est.standstill_pitch() {
+            if let Some((pitch, settled)) = p.standstill_pitch() {
                 let cal = Calibration {
                     reference_pitch_deg: pitch,
                     settled_s: settled,
@@ -90,10 +91,10 @@ pub fn store(p: &mut Pipeline, path: &Path, cal: &Calibration) -> Result<()> {
             "previous state unusable ({reason}); replaced by the calibration"
         );
     }
-    p.est.seed_calibration(cal.reference_pitch_deg, weight);
+    p.seed_calibration(cal.reference_pitch_deg, weight);
     let st = PersistedState {
         format: PersistedState::FORMAT,
-        estimator: p.est.state(),
+        estimator: p.estimator_state(),
         reference_pitch_deg: Some(cal.reference_pitch_deg),
     };
     state::save(path, &st).with_context(|| format!("saving the calibration to {}", path.display()))

@@ -1,84 +1,11 @@
 //! leveld configuration (TOML): interfaces, DBC, the role of each signal, checks,
 //! timeouts, output, actuator and estimator parameters, state file.
 
+pub use crate::can::checks::ChecksumKind;
+pub use crate::can::codec::{InputMessage, OutputMessage};
 use crate::estimator::EstimatorConfig;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-/// How a message's checksum is computed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ChecksumKind {
-    None,
-    /// Hyundai/Kia WHL_SPD11: popcount of the bits outside counter and checksum, XOR 9, AND 15.
-    HyundaiWhlSpd,
-    /// CRC-8 SAE J1850 over the bytes not holding the checksum.
-    Crc8SaeJ1850,
-    /// CRC-8 AUTOSAR (poly 0x2F) over the bytes not holding the checksum.
-    Crc8Autosar,
-}
-
-/// One input message and the signals that play each role in it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct InputMessage {
-    pub message: String,
-    /// Value signals in role order: FL, FR, RL, RR for wheels; x, y, z for the IMU.
-    pub signals: Vec<String>,
-    /// Alive-counter signals, most significant part first (a split counter has two).
-    #[serde(default)]
-    pub counter: Vec<String>,
-    /// Checksum signals, most significant part first.
-    #[serde(default)]
-    pub checksum: Vec<String>,
-    #[serde(default = "default_checksum_kind")]
-    pub checksum_kind: ChecksumKind,
-    #[serde(default = "yes")]
-    pub check_counter: bool,
-    #[serde(default = "yes")]
-    pub check_checksum: bool,
-    /// Largest accepted counter step (lost frames in between are tolerated).
-    #[serde(default = "default_counter_step")]
-    pub max_counter_step: u8,
-    /// Silence after which the input counts as lost; default 10 x the DBC cycle time.
-    #[serde(default)]
-    pub timeout_ms: Option<u32>,
-}
-
-fn default_checksum_kind() -> ChecksumKind {
-    ChecksumKind::None
-}
-fn yes() -> bool {
-    true
-}
-fn default_counter_step() -> u8 {
-    2
-}
-
-/// Where the leveling result goes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OutputMessage {
-    pub message: String,
-    #[serde(default = "default_period")]
-    pub period_ms: u32,
-    pub road_to_body: String,
-    pub level_correction: String,
-    pub road_slope: String,
-    pub estimate_count: String,
-    pub status: String,
-    pub counter: String,
-    pub checksum: String,
-    #[serde(default = "default_out_checksum")]
-    pub checksum_kind: ChecksumKind,
-}
-
-fn default_period() -> u32 {
-    100
-}
-fn default_out_checksum() -> ChecksumKind {
-    ChecksumKind::Crc8SaeJ1850
-}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -270,6 +197,15 @@ impl Config {
             return Err(field(
                 "can.input_interfaces",
                 "name at least one interface".into(),
+            ));
+        }
+        if !matches!(
+            self.output.checksum_kind,
+            ChecksumKind::Crc8SaeJ1850 | ChecksumKind::Crc8Autosar
+        ) {
+            return Err(field(
+                "output.checksum_kind",
+                "choose crc8_sae_j1850 or crc8_autosar (the LEVELING checksum is a CRC over bytes 0-6)".into(),
             ));
         }
         if !(10..=10_000).contains(&self.output.period_ms) {

@@ -5,7 +5,8 @@
 //! realtime base, 20 ms behind, so that frames already stamped but not yet read are
 //! handled first. Interfaces that vanish are reopened with backoff; sends never block.
 
-use super::pipeline::{Notice, Pipeline, Sink};
+use super::pipeline::Pipeline;
+use super::sink::{Notice, Sink};
 use super::state::{self, Loaded, PersistedState};
 use super::status::{self, SaveInfo};
 use super::{ConfigSource, load};
@@ -280,7 +281,7 @@ pub fn restore(p: &mut Pipeline, path: &Path) -> Option<f64> {
 fn persisted(p: &Pipeline, reference: Option<f64>) -> PersistedState {
     PersistedState {
         format: PersistedState::FORMAT,
-        estimator: p.est.state(),
+        estimator: p.estimator_state(),
         reference_pitch_deg: reference,
     }
 }
@@ -407,8 +408,7 @@ async fn run_async(config: Option<&Path>) -> Result<i32> {
                         }
                         Err(e) => break format!("read failed: {e}"),
                     }
-                    if p.dirty {
-                        p.dirty = false;
+                    if p.take_dirty() {
                         save_state(&p, &state_path, reference, &mut publisher.last_save);
                     }
                 }
@@ -461,10 +461,10 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
     }
     serde_json::json!({
         "messages": messages,
-        "ignored_frames": p.ignored_frames,
-        "windows_accepted": p.windows_accepted,
-        "windows_rejected": p.windows_rejected,
-        "standstills": p.standstills,
+        "ignored_frames": p.counters().ignored_frames,
+        "windows_accepted": p.counters().windows_accepted,
+        "windows_rejected": p.counters().windows_rejected,
+        "standstills": p.counters().standstills,
         "sent": live.sent,
         "send_dropped": live.send_dropped,
         "reconnects": live.reconnects,
@@ -575,7 +575,7 @@ pub fn calibrate_live(
                     if let Ok((CanFrame::Data(f), ts)) = r {
                         let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
                         p.on_can_frame_from(source as u32, clock.frame_s(ts), &f, &mut sink);
-                        if let Some((pitch, settled)) = p.est.standstill_pitch() {
+                        if let Some((pitch, settled)) = p.standstill_pitch() {
                             best = Some(settled);
                             if settled >= duration_s {
                                 return Ok(super::calibrate::Calibration { reference_pitch_deg: pitch, settled_s: settled });

@@ -4,9 +4,11 @@
 pub mod calibrate;
 pub mod clock;
 pub mod config;
+pub mod inputs;
 pub mod live;
 pub mod pipeline;
 pub mod replay;
+pub mod sink;
 pub mod state;
 pub mod status;
 

@@ -1,6 +1,8 @@
 //! `leveld replay`: the pipeline run over a candump log, with log stamps as time.
 
-use super::pipeline::{ACC, GYR, MsgStats, Notice, Pipeline, Sink, WHEELS};
+use super::inputs::{ACC, GYR, MsgStats, WHEELS};
+use super::pipeline::Pipeline;
+use super::sink::{Notice, Sink};
 use crate::can::candump::{
     CandumpLine, Line, LogFrame, ParseError, ReadLine, parse_bytes, read_line,
 };
@@ -36,7 +38,7 @@ impl Default for ReplayOptions {
 pub struct FinalState {
     pub road_to_body_pitch_deg: Option<f64>,
     pub std_err_deg: Option<f64>,
-    pub status: super::pipeline::Status,
+    pub status: crate::can::codec::Status,
     pub estimate_count: u64,
     pub standstill: bool,
 }
@@ -230,19 +232,19 @@ pub fn replay<'a>(
         frames: nframes,
         malformed_lines: malformed,
         malformed_examples: examples,
-        ignored_frames: p.ignored_frames,
+        ignored_frames: p.counters().ignored_frames,
         clock_steps: p.clock_steps(),
         messages,
-        estimates_accepted: p.windows_accepted,
-        estimates_rejected: p.windows_rejected,
-        standstills: p.standstills,
-        leveling_frames: p.frames_sent,
+        estimates_accepted: p.counters().windows_accepted,
+        estimates_rejected: p.counters().windows_rejected,
+        standstills: p.counters().standstills,
+        leveling_frames: p.counters().frames_sent,
         final_state: FinalState {
             road_to_body_pitch_deg: est.map(|e| e.road_to_body_deg),
             std_err_deg: est.map(|e| e.std_err_deg),
             status: p.status(),
             estimate_count: est.map_or(0, |e| e.windows),
-            standstill: p.est.is_standstill(),
+            standstill: p.is_standstill(),
         },
     })
 }

@@ -3,8 +3,10 @@
 //! atomically once a second and at shutdown. It is written from the timer, never
 //! from the frame path.
 
+use super::inputs::MsgStats;
 use super::live::LiveStats;
-use super::pipeline::{MsgStats, Pipeline, Status};
+use super::pipeline::Pipeline;
+use crate::can::codec::Status;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -124,9 +126,9 @@ pub fn report(p: &Pipeline, live: &LiveStats, cx: &Context) -> StatusReport {
         reconnects: live.reconnects,
         bus_off: live.bus_off,
         wall_clock_steps: live.wall_clock_steps,
-        windows_accepted: p.windows_accepted,
-        windows_rejected: p.windows_rejected,
-        standstills: p.standstills,
+        windows_accepted: p.counters().windows_accepted,
+        windows_rejected: p.counters().windows_rejected,
+        standstills: p.counters().standstills,
     }
 }
 
