@@ -29,6 +29,9 @@ pub struct Counters {
     pub standstills: u64,
 }
 
+/// One of the two frames of an IMU sample: its counter, time and x, y, z.
+type ImuHalf = (Option<u8>, f64, [f64; 3]);
+
 /// The pipeline. Build it with [`Pipeline::new`], feed [`Pipeline::on_frame`] and
 /// [`Pipeline::tick`], and read what it produced from the [`Sink`].
 #[derive(Debug)]
@@ -49,8 +52,8 @@ pub struct Pipeline {
     counters: Counters,
     /// State changed since last taken (an accepted window or load change).
     dirty: bool,
-    /// The IMU half (accelerometer, gyro) waiting for its partner: counter, time, xyz.
-    half: [Option<(Option<u8>, f64, [f64; 3])>; 2],
+    /// The IMU half (accelerometer, gyro) waiting for its partner.
+    half: [Option<ImuHalf>; 2],
 }
 
 impl Pipeline {
