@@ -5,23 +5,15 @@
 //! requested time; the result is stored in the state file as the reference pitch and
 //! seeds the estimate.
 
+use super::frame_loop::{self, LinkEvent, Observer, Received};
+use super::log_bus::LogBus;
 use super::pipeline::Pipeline;
-use super::sink::{Notice, Sink};
+use super::sink::Notice;
 use super::state::{self, Loaded, PersistedState};
-use crate::can::candump::{Line, ReadLine, parse_bytes, read_line};
-use crate::estimator::Event;
 use anyhow::{Context, Result, bail};
 use std::io::BufRead;
+use std::ops::ControlFlow;
 use std::path::Path;
-
-struct Quiet;
-impl Sink for Quiet {
-    fn event(&mut self, _: &Event) {}
-    fn notice(&mut self, n: &Notice) {
-        tracing::warn!(?n, "input");
-    }
-    fn frame(&mut self, _: f64, _: u32, _: bool, _: &[u8; 8]) {}
-}
 
 /// Result of a calibration.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -38,6 +30,55 @@ pub fn check_duration(duration_s: f64) -> Result<()> {
     Ok(())
 }
 
+/// Watches the standstill until it has settled for `duration_s`.
+pub struct Settle {
+    duration_s: f64,
+    /// The longest settled standstill so far.
+    pub best: Option<Calibration>,
+    /// Why the bus could not be opened (live calibration stops at it).
+    pub link_error: Option<String>,
+}
+
+impl Settle {
+    pub fn new(duration_s: f64) -> Self {
+        Self {
+            duration_s,
+            best: None,
+            link_error: None,
+        }
+    }
+
+    /// The calibration, once the standstill has settled long enough.
+    pub fn done(&self) -> Option<Calibration> {
+        self.best.filter(|c| c.settled_s >= self.duration_s)
+    }
+}
+
+impl Observer for Settle {
+    fn notice(&mut self, n: &Notice) {
+        tracing::warn!(?n, "input");
+    }
+
+    fn after(&mut self, p: &mut Pipeline, r: &Received) -> ControlFlow<()> {
+        if let Received::Link(LinkEvent::Waiting(e) | LinkEvent::Lost(e)) = r {
+            self.link_error = Some(e.clone());
+            return ControlFlow::Break(());
+        }
+        if let Received::Frame(_) = r
+            && let Some((pitch, settled)) = p.standstill_pitch()
+        {
+            self.best = Some(Calibration {
+                reference_pitch_deg: pitch,
+                settled_s: settled,
+            });
+            if settled >= self.duration_s {
+                return ControlFlow::Break(());
+            }
+        }
+        ControlFlow::Continue(())
+    }
+}
+
 /// Feed a log until the standstill has settled for `duration_s`.
 pub fn from_log(
     p: &mut Pipeline,
@@ -46,37 +87,31 @@ pub fn from_log(
     duration_s: f64,
 ) -> Result<Calibration> {
     check_duration(duration_s)?;
-    let mut line = Vec::with_capacity(256);
-    let mut best: Option<Calibration> = None;
-    loop {
-        match read_line(input, &mut line).context("reading the log")? {
-            ReadLine::Eof => break,
-            ReadLine::TooLong => continue,
-            ReadLine::Line => {}
-        }
-        if let Ok(Line::Frame(f)) = parse_bytes(&line)
-            && interface.is_none_or(|i| i == f.iface())
-            && !f.fd
-        {
-            p.on_can_frame(f.t_s, &f, &mut Quiet);
-            if let Some((pitch, settled)) = p.standstill_pitch() {
-                let cal = Calibration {
-                    reference_pitch_deg: pitch,
-                    settled_s: settled,
-                };
-                if settled >= duration_s {
-                    return Ok(cal);
-                }
-                best = Some(cal);
-            }
-        }
+    let mut bus = LogBus::new(input).only(interface.map(str::to_string));
+    let mut settle = Settle::new(duration_s);
+    frame_loop::block_on(frame_loop::run(
+        p,
+        &mut bus,
+        &mut settle,
+        std::future::pending(),
+    ));
+    if let Some(e) = bus.take_error() {
+        return Err(e).context("reading the log");
     }
+    match (settle.done(), settle.best) {
+        (Some(c), _) => Ok(c),
+        (None, best) => Err(not_settled(duration_s, best)),
+    }
+}
+
+/// The error when no standstill settled for `duration_s`.
+pub fn not_settled(duration_s: f64, best: Option<Calibration>) -> anyhow::Error {
     match best {
-        Some(c) => bail!(
+        Some(c) => anyhow::anyhow!(
             "the vehicle was still for only {:.1} s of the {duration_s:.1} s needed; record a longer standstill",
             c.settled_s
         ),
-        None => bail!(
+        None => anyhow::anyhow!(
             "no standstill found: the wheels must read zero and the IMU be still (check that WHL_SPD11, IMU_ACC and IMU_GYR are in the log)"
         ),
     }

@@ -9,6 +9,8 @@
 //! as a clock step: the pipeline time continues from where it was, shifted by the
 //! step, and the caller restarts what spans time (timeouts, an open standstill).
 
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
 /// Frames of different interfaces may arrive slightly out of order: a timestamp this
 /// much behind the newest is taken as the newest, not as a step, s.
 pub const BACK_TOL_S: f64 = 0.5;
@@ -75,6 +77,81 @@ impl FrameClock {
     /// Newest pipeline time, if any frame was seen.
     pub fn now_s(&self) -> Option<f64> {
         self.last_s
+    }
+}
+
+/// A jump of the wall clock against the monotonic clock larger than this between two
+/// reads is a step, not a slew, s.
+const MAX_WALL_STEP_S: f64 = 0.5;
+
+/// Pipeline time of a live run. Frames carry the kernel's receive time, a wall-clock
+/// time, so that a candump recording of the same frames replays to the same output. The
+/// wall clock may be stepped at any moment (GNSS or NTP after boot, a user), so the
+/// offset between the wall clock and CLOCK_MONOTONIC is read with every frame and
+/// tick: a slow slew is followed, and a jump of more than `MAX_WALL_STEP_S` is a step,
+/// taken out of every later stamp and tick. A step of the wall clock therefore changes
+/// neither the output period nor the estimate.
+pub struct MonoClock {
+    start: Instant,
+    /// Wall clock minus monotonic clock as last read, s.
+    wall_minus_mono_s: f64,
+    /// Sum of the wall-clock steps taken out, s.
+    offset_s: f64,
+    pub steps: u64,
+}
+
+fn wall_s(t: SystemTime) -> f64 {
+    match t.duration_since(UNIX_EPOCH) {
+        Ok(d) => d.as_secs_f64(),
+        Err(e) => -e.duration().as_secs_f64(),
+    }
+}
+
+impl Default for MonoClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl MonoClock {
+    pub fn new() -> Self {
+        let start = Instant::now();
+        Self {
+            start,
+            wall_minus_mono_s: wall_s(SystemTime::now()),
+            offset_s: 0.0,
+            steps: 0,
+        }
+    }
+
+    /// Read both clocks; take a jump of their difference out as a step. Returns the
+    /// monotonic time, s.
+    fn sample(&mut self) -> f64 {
+        let mono = self.start.elapsed().as_secs_f64();
+        let d = wall_s(SystemTime::now()) - mono;
+        let jump = d - self.wall_minus_mono_s;
+        if jump.abs() > MAX_WALL_STEP_S {
+            self.offset_s -= jump;
+            self.steps += 1;
+            tracing::warn!(
+                step_s = jump,
+                "the wall clock stepped; leveld keeps its own time"
+            );
+        }
+        self.wall_minus_mono_s = d;
+        mono
+    }
+
+    /// Now, in pipeline time.
+    pub fn now_s(&mut self) -> f64 {
+        let mono = self.sample();
+        mono + self.wall_minus_mono_s + self.offset_s
+    }
+
+    /// Pipeline time of a frame stamped `stamp` by the kernel.
+    pub fn frame_s(&mut self, stamp: SystemTime) -> f64 {
+        self.sample();
+        wall_s(stamp) + self.offset_s
     }
 }
 

@@ -1,250 +1,48 @@
-//! `leveld run`: the pipeline on SocketCAN under systemd.
+//! `leveld run`: the pipeline as a systemd service.
 //!
-//! Frames carry their kernel receive time (SO_TIMESTAMPNS); that is the pipeline's
-//! clock. When the bus is silent a 10 ms timer advances the clock from the same
-//! realtime base, 20 ms behind, so that frames already stamped but not yet read are
-//! handled first. Interfaces that vanish are reopened with backoff; sends never block.
+//! [`serve`] is the daemon with its IO passed in: a [`Bus`] (SocketCAN in
+//! production, a list of frames in tests) and a shutdown future (SIGTERM/SIGINT in
+//! production). It restores the saved state, runs the frame loop, saves the state
+//! off the loop after every change, publishes what `leveld status` reads, serves the
+//! systemd notify protocol, and saves once more on shutdown.
 
+use super::config::Config;
+use super::frame_loop::{self, Bus, Ended, LinkEvent, Observer, Received};
 use super::pipeline::Pipeline;
-use super::sink::{Notice, Sink};
+use super::saver::{Saver, save_now};
+use super::sink::Notice;
+use super::socket::{LiveBus, LiveStats, SharedStats};
 use super::state::{self, Loaded, PersistedState};
 use super::status::{self, SaveInfo};
 use super::{ConfigSource, load};
-use crate::can::{
-    CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_CRTL_RX_PASSIVE, CAN_ERR_CRTL_TX_PASSIVE,
-    CAN_ERR_RESTARTED,
-};
+use crate::can::codec::Status;
 use crate::estimator::Event;
 use anyhow::{Context, Result};
-use embedded_can::{ExtendedId, Frame as _, Id, StandardId};
-use futures_util::stream::{SelectAll, StreamExt};
-use socketcan::tokio::CanSocket;
-use socketcan::{CanFilter, CanFrame, SocketOptions};
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::pin::Pin;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
-
-/// Clock hold-back of the idle timer, s.
-const HOLD_BACK_S: f64 = 0.02;
-
-/// A jump of the wall clock against the monotonic clock larger than this between two
-/// reads is a step, not a slew, s.
-const MAX_WALL_STEP_S: f64 = 0.5;
+use std::time::{Duration, Instant};
 
 /// Shortest watchdog petting interval: a WATCHDOG_USEC below twice this cannot be
 /// served by a frame loop and is served at this rate instead.
 const MIN_WATCHDOG_PET: Duration = Duration::from_millis(20);
-
-/// Pipeline time of a live run. Frames carry the kernel's receive time, a wall-clock
-/// time, so that a candump recording of the same frames replays to the same output. The
-/// wall clock may be stepped at any moment (GNSS or NTP after boot, a user), so the
-/// offset between the wall clock and CLOCK_MONOTONIC is read with every frame and
-/// tick: a slow slew is followed, and a jump of more than `MAX_WALL_STEP_S` is a step,
-/// taken out of every later stamp and tick. A step of the wall clock therefore changes
-/// neither the output period nor the estimate.
-struct MonoClock {
-    start: Instant,
-    /// Wall clock minus monotonic clock as last read, s.
-    wall_minus_mono_s: f64,
-    /// Sum of the wall-clock steps taken out, s.
-    offset_s: f64,
-    steps: u64,
-}
-
-fn wall_s(t: SystemTime) -> f64 {
-    match t.duration_since(UNIX_EPOCH) {
-        Ok(d) => d.as_secs_f64(),
-        Err(e) => -e.duration().as_secs_f64(),
-    }
-}
-
-impl MonoClock {
-    fn new() -> Self {
-        let start = Instant::now();
-        Self {
-            start,
-            wall_minus_mono_s: wall_s(SystemTime::now()),
-            offset_s: 0.0,
-            steps: 0,
-        }
-    }
-
-    /// Read both clocks; take a jump of their difference out as a step. Returns the
-    /// monotonic time, s.
-    fn sample(&mut self) -> f64 {
-        let mono = self.start.elapsed().as_secs_f64();
-        let d = wall_s(SystemTime::now()) - mono;
-        let jump = d - self.wall_minus_mono_s;
-        if jump.abs() > MAX_WALL_STEP_S {
-            self.offset_s -= jump;
-            self.steps += 1;
-            tracing::warn!(
-                step_s = jump,
-                "the wall clock stepped; leveld keeps its own time"
-            );
-        }
-        self.wall_minus_mono_s = d;
-        mono
-    }
-
-    /// Now, in pipeline time.
-    fn now_s(&mut self) -> f64 {
-        let mono = self.sample();
-        mono + self.wall_minus_mono_s + self.offset_s
-    }
-
-    /// Pipeline time of a frame stamped `stamp` by the kernel.
-    fn frame_s(&mut self, stamp: SystemTime) -> f64 {
-        self.sample();
-        wall_s(stamp) + self.offset_s
-    }
-}
+/// How often the status file for `leveld status` is rewritten.
+const PUBLISH_EVERY: Duration = Duration::from_secs(1);
+/// How often systemd's STATUS= line is refreshed.
+const NOTIFY_STATUS_EVERY: Duration = Duration::from_secs(5);
 
 /// Petting interval for the watchdog timeout systemd asked for.
-fn watchdog_pet(timeout: Option<Duration>) -> Duration {
+fn watchdog_pet(timeout: Option<Duration>) -> Option<Duration> {
     match timeout {
-        Some(d) if d / 2 >= MIN_WATCHDOG_PET => d / 2,
+        Some(d) if d / 2 >= MIN_WATCHDOG_PET => Some(d / 2),
         Some(d) => {
             tracing::warn!(
                 ?d,
                 "watchdog timeout too short to serve; petting every {MIN_WATCHDOG_PET:?}"
             );
-            MIN_WATCHDOG_PET
+            Some(MIN_WATCHDOG_PET)
         }
-        None => Duration::from_secs(3600),
+        None => None,
     }
-}
-
-/// Counters of the live loop.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct LiveStats {
-    pub sent: u64,
-    pub send_dropped: u64,
-    pub reconnects: u64,
-    pub bus_off: u64,
-    pub error_passive: u64,
-    /// Steps of the wall clock taken out of the frame stamps.
-    pub wall_clock_steps: u64,
-}
-
-struct LiveSink<'a> {
-    out: Option<&'a CanSocket>,
-    stats: &'a mut LiveStats,
-    lost_output: bool,
-}
-
-impl Sink for LiveSink<'_> {
-    fn event(&mut self, e: &Event) {
-        match e {
-            Event::WindowAccepted { window, estimate } => tracing::info!(
-                condition = ?window.condition,
-                imu_pitch_deg = window.imu_pitch_deg,
-                road_slope_deg = window.road_slope_deg,
-                road_to_body_deg = window.road_to_body_deg,
-                estimate_deg = estimate.road_to_body_deg,
-                std_err_deg = estimate.std_err_deg,
-                "window accepted"
-            ),
-            Event::WindowRejected {
-                condition, reason, ..
-            } => tracing::info!(?condition, ?reason, "window rejected"),
-            Event::LoadChanged { delta_deg, .. } => {
-                tracing::info!(delta_deg, "load change at standstill")
-            }
-            Event::PitchShifted { delta_deg, .. } => {
-                tracing::warn!(
-                    delta_deg,
-                    "windows in a row disagree with the estimate; restarted from them"
-                )
-            }
-            Event::WheelsStopped { .. } => tracing::info!("wheels stopped"),
-            Event::LoadChangeSuspected { delta_deg, .. } => {
-                tracing::info!(
-                    delta_deg,
-                    "pitch step since the saved baseline; confirming with the next window"
-                )
-            }
-            Event::WheelsMoving { .. } => tracing::info!("wheels moving"),
-            Event::StandstillStarted { imu_pitch_deg, .. } => {
-                tracing::info!(imu_pitch_deg, "standstill")
-            }
-            other => tracing::debug!(?other),
-        }
-    }
-    fn notice(&mut self, n: &Notice) {
-        tracing::warn!(?n, "input");
-    }
-    fn frame(&mut self, _t_s: f64, id: u32, extended: bool, data: &[u8; 8]) {
-        let Some(sock) = self.out else {
-            self.stats.send_dropped += 1;
-            return;
-        };
-        let id = if extended {
-            ExtendedId::new(id).map(Id::Extended)
-        } else {
-            StandardId::new(id as u16).map(Id::Standard)
-        };
-        let Some(frame) = id.and_then(|id| CanFrame::new(id, data)) else {
-            return;
-        };
-        match sock.try_write_frame(frame) {
-            Ok(()) => self.stats.sent += 1,
-            Err(e) => {
-                // ENOBUFS / EAGAIN: the queue is full; drop rather than wait.
-                self.stats.send_dropped += 1;
-                if !matches!(e.raw_os_error(), Some(libc::ENOBUFS) | Some(libc::EAGAIN)) {
-                    self.lost_output = true;
-                }
-            }
-        }
-    }
-}
-
-type FrameStream =
-    Pin<Box<dyn futures_util::Stream<Item = (usize, std::io::Result<(CanFrame, SystemTime)>)>>>;
-
-fn open_input(iface: &str, ids: &[(u32, bool)]) -> std::io::Result<CanSocket> {
-    let s = CanSocket::open(iface)?;
-    let filters: Vec<CanFilter> = ids
-        .iter()
-        .map(|&(id, ext)| {
-            if ext {
-                CanFilter::new(
-                    id | libc::CAN_EFF_FLAG,
-                    libc::CAN_EFF_MASK | libc::CAN_EFF_FLAG | libc::CAN_RTR_FLAG,
-                )
-            } else {
-                CanFilter::new(
-                    id,
-                    libc::CAN_SFF_MASK | libc::CAN_EFF_FLAG | libc::CAN_RTR_FLAG,
-                )
-            }
-        })
-        .collect();
-    s.set_filters(&filters)?;
-    s.set_error_filter(CAN_ERR_BUSOFF | CAN_ERR_CRTL | CAN_ERR_RESTARTED)?;
-    s.set_recv_timestamp(true)?;
-    Ok(s)
-}
-
-fn open_all(
-    cfg: &super::config::Config,
-    ids: &[(u32, bool)],
-) -> std::io::Result<(SelectAll<FrameStream>, CanSocket)> {
-    let mut all = SelectAll::new();
-    for (i, iface) in cfg.can.input_interfaces.iter().enumerate() {
-        let s = open_input(iface, ids)
-            .map_err(|e| std::io::Error::new(e.kind(), format!("{iface}: {e}")))?;
-        let st: FrameStream = Box::pin(futures_util::stream::unfold(s, move |s| async move {
-            let r = s.read_frame_with_timestamp().await;
-            Some(((i, r), s))
-        }));
-        all.push(st);
-    }
-    let out = CanSocket::open(&cfg.can.output_interface)
-        .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", cfg.can.output_interface)))?;
-    out.set_filter_drop_all()?;
-    Ok((all, out))
 }
 
 /// Restore persisted state into the pipeline; returns the end-of-line reference pitch.
@@ -298,154 +96,234 @@ pub fn run(config: Option<&Path>) -> Result<i32> {
         .enable_all()
         .build()
         .context("starting the runtime")?;
-    rt.block_on(run_async(config))
+    rt.block_on(async {
+        let (cfg, db, src) = load(config)?;
+        if let ConfigSource::BuiltIn = src {
+            tracing::warn!(
+                "no config given and {} missing: using the built-in default",
+                super::SYSTEM_CONFIG
+            );
+        }
+        let mut p = Pipeline::new(&cfg, &db)?;
+        let stats = SharedStats::default();
+        let mut bus = LiveBus::new(&cfg, p.input_ids(), stats.clone());
+        use tokio::signal::unix::{SignalKind, signal};
+        let mut sigterm = signal(SignalKind::terminate())?;
+        let mut sigint = signal(SignalKind::interrupt())?;
+        let stop = async move {
+            tokio::select! {
+                _ = sigterm.recv() => {}
+                _ = sigint.recv() => {}
+            }
+        };
+        serve(&cfg, &mut p, &mut bus, stats, stop).await
+    })
 }
 
-async fn run_async(config: Option<&Path>) -> Result<i32> {
-    let (cfg, db, src) = load(config)?;
-    if let ConfigSource::BuiltIn = src {
-        tracing::warn!(
-            "no config given and {} missing: using the built-in default",
-            super::SYSTEM_CONFIG
-        );
+/// The daemon over `bus` until `shutdown` completes (or the bus ends): state restored
+/// from and saved to `cfg.state.path`, status published to `cfg.state.status_path`.
+/// Returns the exit code: 0, or 1 when the state could not be saved at shutdown.
+pub async fn serve<B: Bus>(
+    cfg: &Config,
+    p: &mut Pipeline,
+    bus: &mut B,
+    stats: SharedStats,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> Result<i32> {
+    let reference = restore(p, &cfg.state.path);
+    let mut d = Daemon::new(cfg, reference, stats);
+    let ended = frame_loop::run(p, bus, &mut d, shutdown).await;
+    if ended == Ended::Input {
+        tracing::warn!("the input ended; stopping");
     }
-    let mut p = Pipeline::new(&cfg, &db)?;
-    let state_path = cfg.state.path.clone();
-    let reference = restore(&mut p, &state_path);
-    let ids = p.input_ids();
-    let mut stats = LiveStats::default();
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
-    let mut tick = tokio::time::interval(Duration::from_millis(10));
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let wd = sd_notify::watchdog_enabled();
-    let mut watchdog = tokio::time::interval(watchdog_pet(wd));
-    let mut clock = MonoClock::new();
-    let mut status_every = tokio::time::interval(Duration::from_secs(5));
-    let mut publish_every = tokio::time::interval(Duration::from_secs(1));
-    publish_every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut publisher = Publisher {
-        path: cfg.state.status_path.clone(),
-        state_path: state_path.clone(),
-        started_unix_s: status::unix_now_s(),
-        last_save: None,
-        can: "opening".into(),
-        warned: false,
-    };
-    let mut backoff = Duration::from_millis(100);
-    let mut ready_sent = false;
-    let mut last_status = None;
+    Ok(d.shutdown(p))
+}
 
-    loop {
-        let (mut frames, out) = match open_all(&cfg, &ids) {
-            Ok(x) => {
-                if stats.reconnects > 0 || !ready_sent {
-                    tracing::info!(inputs = ?cfg.can.input_interfaces, output = %cfg.can.output_interface, "CAN open");
-                }
-                backoff = Duration::from_millis(100);
-                publisher.can = "open".into();
-                x
+/// The daemon's side of the frame loop.
+struct Daemon {
+    state_path: PathBuf,
+    reference: Option<f64>,
+    saver: Saver,
+    publisher: Publisher,
+    stats: SharedStats,
+    ready_sent: bool,
+    watchdog: Option<Duration>,
+    last_pet: Instant,
+    last_publish: Instant,
+    last_notify: Instant,
+    last_status: Option<Status>,
+}
+
+impl Daemon {
+    fn new(cfg: &Config, reference: Option<f64>, stats: SharedStats) -> Self {
+        let now = Instant::now();
+        Self {
+            state_path: cfg.state.path.clone(),
+            reference,
+            saver: Saver::start(cfg.state.path.clone()),
+            publisher: Publisher {
+                path: cfg.state.status_path.clone(),
+                state_path: cfg.state.path.clone(),
+                started_unix_s: status::unix_now_s(),
+                can: "opening".into(),
+                warned: false,
+            },
+            stats,
+            ready_sent: false,
+            watchdog: watchdog_pet(sd_notify::watchdog_enabled()),
+            last_pet: now,
+            last_publish: now,
+            last_notify: now,
+            last_status: None,
+        }
+    }
+
+    fn ready(&mut self) {
+        if !self.ready_sent {
+            notify(&[sd_notify::NotifyState::Ready]);
+            self.ready_sent = true;
+        }
+    }
+
+    fn link(&mut self, ev: &LinkEvent) {
+        match ev {
+            LinkEvent::Open => {
+                tracing::info!("CAN open");
+                self.publisher.can = "open".into();
+                self.ready();
             }
-            Err(e) => {
-                tracing::warn!("cannot open CAN ({e}); retrying in {:?}", backoff);
-                publisher.can = format!("waiting: {e}");
-                if !ready_sent {
-                    notify(&[sd_notify::NotifyState::Ready]);
-                    ready_sent = true;
-                }
+            LinkEvent::Waiting(e) => {
+                tracing::warn!("cannot open CAN ({e}); retrying");
+                self.publisher.can = format!("waiting: {e}");
+                self.ready();
                 notify(&[sd_notify::NotifyState::Status(&format!(
                     "waiting for CAN: {e}"
                 ))]);
-                let deadline = tokio::time::sleep(backoff);
-                tokio::pin!(deadline);
-                loop {
-                    tokio::select! {
-                        _ = &mut deadline => break,
-                        _ = tick.tick() => {
-                            let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
-                            p.tick(clock.now_s() - HOLD_BACK_S, &mut sink);
-                        }
-                        _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
-                        _ = publish_every.tick() => publisher.publish(&p, &stats, reference, true),
-                        _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
-                        _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
-                    }
-                }
-                backoff = (backoff * 2).min(Duration::from_secs(5));
-                stats.reconnects += 1;
-                continue;
             }
-        };
-        if !ready_sent {
-            notify(&[sd_notify::NotifyState::Ready]);
-            ready_sent = true;
+            LinkEvent::Lost(reason) => {
+                tracing::warn!("CAN lost ({reason}); reconnecting");
+                self.publisher.can = format!("lost: {reason}");
+                notify(&[sd_notify::NotifyState::Status(&format!(
+                    "CAN lost: {reason}; reconnecting"
+                ))]);
+            }
         }
-        let reason = loop {
-            tokio::select! {
-                item = frames.next() => {
-                    let Some((source, r)) = item else { break "no input stream".to_string() };
-                    match r {
-                        Ok((CanFrame::Data(f), ts)) => {
-                            let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                            let t = clock.frame_s(ts);
-                            sink.stats.wall_clock_steps = clock.steps;
-                            p.on_can_frame_from(source as u32, t, &f, &mut sink);
-                            if sink.lost_output { break "output socket failed".to_string() }
-                        }
-                        Ok((CanFrame::Remote(_), _)) => {}
-                        Ok((CanFrame::Error(e), ts)) => {
-                            let bits = e.error_bits();
-                            let d = e.data();
-                            if bits & CAN_ERR_BUSOFF != 0 {
-                                stats.bus_off += 1;
-                            }
-                            let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                            p.on_error_frame(clock.frame_s(ts), bits, &mut sink);
-                            if bits & CAN_ERR_CRTL != 0 && d.len() > 1 && d[1] & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE) != 0 {
-                                stats.error_passive += 1;
-                                tracing::warn!("controller error-passive");
-                            }
-                        }
-                        Err(e) => break format!("read failed: {e}"),
-                    }
-                    if p.take_dirty() {
-                        save_state(&p, &state_path, reference, &mut publisher.last_save);
-                    }
-                }
-                _ = tick.tick() => {
-                    let now = clock.now_s();
-                    stats.wall_clock_steps = clock.steps;
-                    let mut sink = LiveSink { out: Some(&out), stats: &mut stats, lost_output: false };
-                    p.tick(now - HOLD_BACK_S, &mut sink);
-                    if sink.lost_output { break "output socket failed".to_string() }
-                }
-                _ = watchdog.tick() => if wd.is_some() { notify(&[sd_notify::NotifyState::Watchdog]) },
-                _ = status_every.tick() => {
-                    let st = p.status();
-                    let text = match p.estimate() {
-                        Some(e) => format!("{st:?}: road-to-body {:+.2} deg +- {:.2} ({} windows); sent {}, dropped {}", e.road_to_body_deg, e.std_err_deg, e.windows, stats.sent, stats.send_dropped),
-                        None => format!("{st:?}: no estimate yet; sent {}, dropped {}", stats.sent, stats.send_dropped),
-                    };
-                    notify(&[sd_notify::NotifyState::Status(&text)]);
-                    if last_status != Some(st) {
-                        tracing::info!(status = ?st, "status");
-                        last_status = Some(st);
-                    }
-                }
-                _ = publish_every.tick() => publisher.publish(&p, &stats, reference, true),
-                _ = sigterm.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
-                _ = sigint.recv() => return shutdown(&p, &state_path, reference, &stats, &mut publisher),
+    }
+
+    /// Watchdog, STATUS= and the status file, on the idle timer.
+    fn housekeeping(&mut self, p: &Pipeline) {
+        let now = Instant::now();
+        if let Some(pet) = self.watchdog
+            && now - self.last_pet >= pet
+        {
+            notify(&[sd_notify::NotifyState::Watchdog]);
+            self.last_pet = now;
+        }
+        if now - self.last_publish >= PUBLISH_EVERY {
+            self.last_publish = now;
+            let live = self.stats.get();
+            self.publisher
+                .publish(p, &live, self.reference, self.saver.last().as_ref(), true);
+        }
+        if now - self.last_notify >= NOTIFY_STATUS_EVERY {
+            self.last_notify = now;
+            let live = self.stats.get();
+            let st = p.status();
+            let text = match p.estimate() {
+                Some(e) => format!(
+                    "{st:?}: road-to-body {:+.2} deg +- {:.2} ({} windows); sent {}, dropped {}",
+                    e.road_to_body_deg, e.std_err_deg, e.windows, live.sent, live.send_dropped
+                ),
+                None => format!(
+                    "{st:?}: no estimate yet; sent {}, dropped {}",
+                    live.sent, live.send_dropped
+                ),
+            };
+            notify(&[sd_notify::NotifyState::Status(&text)]);
+            if self.last_status != Some(st) {
+                tracing::info!(status = ?st, "status");
+                self.last_status = Some(st);
             }
-        };
-        tracing::warn!("CAN lost ({reason}); reconnecting");
-        publisher.can = format!("lost: {reason}");
-        notify(&[sd_notify::NotifyState::Status(&format!(
-            "CAN lost: {reason}; reconnecting"
-        ))]);
-        stats.reconnects += 1;
-        drop(frames);
-        drop(out);
-        tokio::time::sleep(backoff).await;
+        }
+    }
+
+    fn shutdown(self, p: &Pipeline) -> i32 {
+        notify(&[sd_notify::NotifyState::Stopping]);
+        let live = self.stats.get();
+        tracing::info!("final stats {}", stats_json(p, &live));
+        self.saver.finish();
+        let saved = save_now(&self.state_path, &persisted(p, self.reference));
+        let mut publisher = self.publisher;
+        publisher.can = "closed: stopped".into();
+        publisher.publish(p, &live, self.reference, Some(&saved), false);
+        if saved.ok {
+            tracing::info!(path = %self.state_path.display(), status = ?p.status(), "state saved; exiting");
+            0
+        } else {
+            tracing::error!(path = %self.state_path.display(), "cannot save state at shutdown");
+            1
+        }
+    }
+}
+
+impl Observer for Daemon {
+    fn event(&mut self, e: &Event) {
+        log_event(e);
+    }
+
+    fn notice(&mut self, n: &Notice) {
+        tracing::warn!(?n, "input");
+    }
+
+    fn after(&mut self, p: &mut Pipeline, r: &Received) -> ControlFlow<()> {
+        match r {
+            Received::Link(ev) => self.link(ev),
+            Received::Tick(_) => self.housekeeping(p),
+            _ => {}
+        }
+        if p.take_dirty() {
+            self.saver
+                .request(persisted(p, self.reference), &self.state_path);
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+fn log_event(e: &Event) {
+    match e {
+        Event::WindowAccepted { window, estimate } => tracing::info!(
+            condition = ?window.condition,
+            imu_pitch_deg = window.imu_pitch_deg,
+            road_slope_deg = window.road_slope_deg,
+            road_to_body_deg = window.road_to_body_deg,
+            estimate_deg = estimate.road_to_body_deg,
+            std_err_deg = estimate.std_err_deg,
+            "window accepted"
+        ),
+        Event::WindowRejected {
+            condition, reason, ..
+        } => tracing::info!(?condition, ?reason, "window rejected"),
+        Event::LoadChanged { delta_deg, .. } => {
+            tracing::info!(delta_deg, "load change at standstill")
+        }
+        Event::PitchShifted { delta_deg, .. } => {
+            tracing::warn!(
+                delta_deg,
+                "windows in a row disagree with the estimate; restarted from them"
+            )
+        }
+        Event::WheelsStopped { .. } => tracing::info!("wheels stopped"),
+        Event::LoadChangeSuspected { delta_deg, .. } => {
+            tracing::info!(
+                delta_deg,
+                "pitch step since the saved baseline; confirming with the next window"
+            )
+        }
+        Event::WheelsMoving { .. } => tracing::info!("wheels moving"),
+        Event::StandstillStarted { imu_pitch_deg, .. } => {
+            tracing::info!(imu_pitch_deg, "standstill")
+        }
+        other => tracing::debug!(?other),
     }
 }
 
@@ -459,12 +337,13 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
             serde_json::to_value(p.stats(slot)).unwrap_or_default(),
         );
     }
+    let c = p.counters();
     serde_json::json!({
         "messages": messages,
-        "ignored_frames": p.counters().ignored_frames,
-        "windows_accepted": p.counters().windows_accepted,
-        "windows_rejected": p.counters().windows_rejected,
-        "standstills": p.counters().standstills,
+        "ignored_frames": c.ignored_frames,
+        "windows_accepted": c.windows_accepted,
+        "windows_rejected": c.windows_rejected,
+        "standstills": c.standstills,
         "sent": live.sent,
         "send_dropped": live.send_dropped,
         "reconnects": live.reconnects,
@@ -476,37 +355,24 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
     })
 }
 
-/// Save the state file and remember how it went for the status report.
-fn save_state(
-    p: &Pipeline,
-    path: &Path,
-    reference: Option<f64>,
-    last: &mut Option<SaveInfo>,
-) -> bool {
-    let r = state::save(path, &persisted(p, reference));
-    if let Err(e) = &r {
-        tracing::error!(path = %path.display(), "cannot save state: {e}");
-    }
-    *last = Some(SaveInfo {
-        unix_s: status::unix_now_s(),
-        ok: r.is_ok(),
-        error: r.err().map(|e| e.to_string()),
-    });
-    last.as_ref().is_some_and(|s| s.ok)
-}
-
-/// What `leveld status` reads, published from the timer.
+/// What `leveld status` reads.
 struct Publisher {
     path: PathBuf,
     state_path: PathBuf,
     started_unix_s: f64,
-    last_save: Option<SaveInfo>,
     can: String,
     warned: bool,
 }
 
 impl Publisher {
-    fn publish(&mut self, p: &Pipeline, live: &LiveStats, reference: Option<f64>, running: bool) {
+    fn publish(
+        &mut self,
+        p: &Pipeline,
+        live: &LiveStats,
+        reference: Option<f64>,
+        last_save: Option<&SaveInfo>,
+        running: bool,
+    ) {
         if self.path.as_os_str().is_empty() {
             return;
         }
@@ -516,7 +382,7 @@ impl Publisher {
             reference_pitch_deg: reference,
             can: &self.can,
             state_path: &self.state_path,
-            last_save: self.last_save.as_ref(),
+            last_save,
         };
         let r = status::report(p, live, &cx);
         match status::publish(&self.path, &r) {
@@ -530,30 +396,9 @@ impl Publisher {
     }
 }
 
-fn shutdown(
-    p: &Pipeline,
-    path: &Path,
-    reference: Option<f64>,
-    live: &LiveStats,
-    publisher: &mut Publisher,
-) -> Result<i32> {
-    notify(&[sd_notify::NotifyState::Stopping]);
-    tracing::info!("final stats {}", stats_json(p, live));
-    let ok = save_state(p, path, reference, &mut publisher.last_save);
-    publisher.can = "closed: stopped".into();
-    publisher.publish(p, live, reference, false);
-    if ok {
-        tracing::info!(path = %path.display(), status = ?p.status(), "state saved; exiting");
-        Ok(0)
-    } else {
-        tracing::error!(path = %path.display(), "cannot save state at shutdown");
-        Ok(1)
-    }
-}
-
 /// Live end-of-line calibration: read the bus until a standstill has settled.
 pub fn calibrate_live(
-    cfg: &super::config::Config,
+    cfg: &Config,
     p: &mut Pipeline,
     duration_s: f64,
 ) -> Result<super::calibrate::Calibration> {
@@ -561,33 +406,19 @@ pub fn calibrate_live(
         .enable_all()
         .build()?;
     rt.block_on(async {
-        let ids = p.input_ids();
-        let (mut frames, _out) = open_all(cfg, &ids).context("opening CAN for calibration")?;
-        let mut stats = LiveStats::default();
-        let mut clock = MonoClock::new();
-        let limit = tokio::time::sleep(Duration::from_secs_f64(duration_s + 30.0));
-        tokio::pin!(limit);
-        let mut best = None;
-        loop {
-            tokio::select! {
-                item = frames.next() => {
-                    let Some((source, r)) = item else { anyhow::bail!("CAN input ended") };
-                    if let Ok((CanFrame::Data(f), ts)) = r {
-                        let mut sink = LiveSink { out: None, stats: &mut stats, lost_output: false };
-                        p.on_can_frame_from(source as u32, clock.frame_s(ts), &f, &mut sink);
-                        if let Some((pitch, settled)) = p.standstill_pitch() {
-                            best = Some(settled);
-                            if settled >= duration_s {
-                                return Ok(super::calibrate::Calibration { reference_pitch_deg: pitch, settled_s: settled });
-                            }
-                        }
-                    }
-                }
-                _ = &mut limit => anyhow::bail!(
-                    "no settled standstill of {duration_s:.1} s within {:.0} s (best {:.1} s): keep the vehicle still with the wheels stopped",
-                    duration_s + 30.0, best.unwrap_or(0.0)
-                ),
-            }
+        let limit_s = duration_s + 30.0;
+        let mut bus = LiveBus::new(cfg, p.input_ids(), SharedStats::default()).read_only();
+        let mut settle = super::calibrate::Settle::new(duration_s);
+        let limit = tokio::time::sleep(Duration::from_secs_f64(limit_s));
+        frame_loop::run(p, &mut bus, &mut settle, limit).await;
+        if let Some(e) = settle.link_error {
+            anyhow::bail!("opening CAN for calibration: {e}");
         }
+        settle.done().ok_or_else(|| {
+            anyhow::anyhow!(
+                "no settled standstill of {duration_s:.1} s within {limit_s:.0} s (best {:.1} s): keep the vehicle still with the wheels stopped",
+                settle.best.map_or(0.0, |c| c.settled_s)
+            )
+        })
     })
 }

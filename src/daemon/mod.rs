@@ -4,11 +4,15 @@
 pub mod calibrate;
 pub mod clock;
 pub mod config;
+pub mod frame_loop;
 pub mod inputs;
 pub mod live;
+pub mod log_bus;
 pub mod pipeline;
 pub mod replay;
+pub mod saver;
 pub mod sink;
+pub mod socket;
 pub mod state;
 pub mod status;
 

@@ -332,7 +332,8 @@ impl Pipeline {
         self.on_frame_from(0, t_s, id, extended, data, sink);
     }
 
-    fn on_frame_from(
+    /// As [`Pipeline::on_frame`], from interface number `source`.
+    pub fn on_frame_from(
         &mut self,
         source: u32,
         t_s: f64,

@@ -1,15 +1,16 @@
 //! `leveld replay`: the pipeline run over a candump log, with log stamps as time.
 
+use super::frame_loop::{self, Observer, Received};
 use super::inputs::{ACC, GYR, MsgStats, WHEELS};
+use super::log_bus::LogBus;
 use super::pipeline::Pipeline;
-use super::sink::{Notice, Sink};
-use crate::can::candump::{
-    CandumpLine, Line, LogFrame, ParseError, ReadLine, parse_bytes, read_line,
-};
+use super::sink::Notice;
+use crate::can::candump::ParseError;
 use crate::estimator::Event;
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::io::{BufRead, Write};
+use std::ops::ControlFlow;
 
 /// Options of one replay.
 #[derive(Debug, Clone)]
@@ -62,15 +63,19 @@ pub struct Summary {
     pub final_state: FinalState,
 }
 
-struct ReplaySink<'a> {
+struct ReplayObserver<'a> {
     events: &'a mut dyn Write,
-    frames: Option<&'a mut dyn Write>,
     json: bool,
-    iface: &'a str,
+    strict: bool,
+    frames: u64,
+    malformed: u64,
+    examples: Vec<u64>,
+    /// A malformed line under `--strict`.
+    strict_stop: Option<(u64, ParseError)>,
     err: Option<std::io::Error>,
 }
 
-impl ReplaySink<'_> {
+impl ReplayObserver<'_> {
     fn keep(&mut self, r: std::io::Result<()>) {
         if let Err(e) = r {
             self.err.get_or_insert(e);
@@ -78,7 +83,7 @@ impl ReplaySink<'_> {
     }
 }
 
-impl Sink for ReplaySink<'_> {
+impl Observer for ReplayObserver<'_> {
     fn event(&mut self, e: &Event) {
         let r = if self.json {
             writeln!(
@@ -91,6 +96,7 @@ impl Sink for ReplaySink<'_> {
         };
         self.keep(r);
     }
+
     fn notice(&mut self, n: &Notice) {
         let r = if self.json {
             writeln!(
@@ -99,126 +105,108 @@ impl Sink for ReplaySink<'_> {
                 serde_json::to_string(n).unwrap_or_default()
             )
         } else {
-            match n {
-                Notice::InputLost { t_s, message } => writeln!(
-                    self.events,
-                    "{t_s:12.3}  input lost        {message}: holding the last estimate"
-                ),
-                Notice::InputRestored { t_s, message } => {
-                    writeln!(self.events, "{t_s:12.3}  input restored    {message}")
-                }
-                Notice::MessageInvalid {
-                    t_s,
-                    message,
-                    reason,
-                } => {
-                    writeln!(
-                        self.events,
-                        "{t_s:12.3}  input invalid     {message}: repeated {reason} failures"
-                    )
-                }
-                Notice::ClockStep { t_s, step_s } => writeln!(
-                    self.events,
-                    "{t_s:12.3}  clock step        {step_s:+.3} s in the frame timestamps: time goes on from here"
-                ),
-                Notice::BusOff { t_s } => writeln!(
-                    self.events,
-                    "{t_s:12.3}  bus off           FAULT until the controller restarts"
-                ),
-                Notice::BusRestarted { t_s } => {
-                    writeln!(self.events, "{t_s:12.3}  bus restarted")
-                }
-                Notice::EventsDropped { t_s, count } => writeln!(
-                    self.events,
-                    "{t_s:12.3}  events dropped    {count} events of one frame not reported"
-                ),
-            }
+            write_notice(self.events, n)
         };
         self.keep(r);
     }
-    fn frame(&mut self, t_s: f64, id: u32, extended: bool, data: &[u8; 8]) {
-        if let Some(w) = self.frames.as_deref_mut() {
-            let r = writeln!(
-                w,
-                "{}",
-                CandumpLine(&LogFrame::new(t_s, self.iface, id, extended, data))
-            );
-            self.keep(r);
+
+    fn after(&mut self, _: &mut Pipeline, r: &Received) -> ControlFlow<()> {
+        match r {
+            Received::Frame(_) => self.frames += 1,
+            Received::Malformed { line, error } => {
+                self.malformed += 1;
+                if self.strict {
+                    self.strict_stop = Some((*line, *error));
+                    return ControlFlow::Break(());
+                }
+                if self.examples.len() < 20 {
+                    self.examples.push(*line);
+                }
+                tracing::warn!("line {line}: {error}; line skipped");
+            }
+            _ => {}
         }
+        if self.err.is_some() {
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+fn write_notice(out: &mut dyn Write, n: &Notice) -> std::io::Result<()> {
+    match n {
+        Notice::InputLost { t_s, message } => writeln!(
+            out,
+            "{t_s:12.3}  input lost        {message}: holding the last estimate"
+        ),
+        Notice::InputRestored { t_s, message } => {
+            writeln!(out, "{t_s:12.3}  input restored    {message}")
+        }
+        Notice::MessageInvalid {
+            t_s,
+            message,
+            reason,
+        } => {
+            writeln!(
+                out,
+                "{t_s:12.3}  input invalid     {message}: repeated {reason} failures"
+            )
+        }
+        Notice::ClockStep { t_s, step_s } => writeln!(
+            out,
+            "{t_s:12.3}  clock step        {step_s:+.3} s in the frame timestamps: time goes on from here"
+        ),
+        Notice::BusOff { t_s } => writeln!(
+            out,
+            "{t_s:12.3}  bus off           FAULT until the controller restarts"
+        ),
+        Notice::BusRestarted { t_s } => {
+            writeln!(out, "{t_s:12.3}  bus restarted")
+        }
+        Notice::EventsDropped { t_s, count } => writeln!(
+            out,
+            "{t_s:12.3}  events dropped    {count} events of one frame not reported"
+        ),
     }
 }
 
 /// Replay `input` through `p`. Events go to `events`, LEVELING frames to `frames`.
 pub fn replay<'a>(
     p: &mut Pipeline,
-    input: &mut dyn BufRead,
+    input: &'a mut dyn BufRead,
     opts: &'a ReplayOptions,
     events: &'a mut dyn Write,
     frames: Option<&'a mut dyn Write>,
 ) -> Result<Summary> {
-    let mut sink = ReplaySink {
+    let mut bus = LogBus::new(input)
+        .only(opts.interface.clone())
+        .output(frames, &opts.output_interface);
+    let mut obs = ReplayObserver {
         events,
-        frames,
         json: opts.json,
-        iface: &opts.output_interface,
+        strict: opts.strict,
+        frames: 0,
+        malformed: 0,
+        examples: Vec::new(),
+        strict_stop: None,
         err: None,
     };
-    let mut line = Vec::with_capacity(256);
-    let (mut lineno, mut nframes, mut malformed) = (0u64, 0u64, 0u64);
-    let mut examples = Vec::new();
-    let mut ifaces = Interfaces::default();
-    loop {
-        let read = read_line(input, &mut line).context("reading the input log")?;
-        if read == ReadLine::Eof {
-            break;
-        }
-        lineno += 1;
-        let parsed = if read == ReadLine::TooLong {
-            Err(ParseError::TooLong)
-        } else {
-            parse_bytes(&line)
-        };
-        match parsed {
-            Ok(Line::Skip) => {}
-            Ok(Line::Frame(f)) => {
-                if opts.interface.as_deref().is_some_and(|i| i != f.iface()) {
-                    continue;
-                }
-                nframes += 1;
-                if f.error {
-                    p.on_error_frame(f.t_s, f.id, &mut sink);
-                    continue;
-                }
-                if f.fd {
-                    // CAN FD frames are not among the inputs.
-                    p.on_other_frame(f.t_s, &mut sink);
-                    continue;
-                }
-                match ifaces.index(f.iface()) {
-                    Some(source) => p.on_can_frame_from(source, f.t_s, &f, &mut sink),
-                    None => p.on_other_frame(f.t_s, &mut sink),
-                }
-            }
-            Err(e) => {
-                malformed += 1;
-                if opts.strict {
-                    bail!(
-                        "line {lineno}: {e}: {:?} (drop --strict to skip malformed lines)",
-                        String::from_utf8_lossy(&line).trim_end()
-                    );
-                }
-                if examples.len() < 20 {
-                    examples.push(lineno);
-                }
-                tracing::warn!("line {lineno}: {e}; line skipped");
-            }
-        }
-        if let Some(e) = sink.err.take() {
-            return Err(e).context("writing output");
-        }
+    frame_loop::block_on(frame_loop::run(
+        p,
+        &mut bus,
+        &mut obs,
+        std::future::pending(),
+    ));
+    if let Some((lineno, e)) = obs.strict_stop {
+        bail!(
+            "line {lineno}: {e}: {:?} (drop --strict to skip malformed lines)",
+            bus.last_line()
+        );
     }
-    p.finish(&mut sink);
-    if let Some(e) = sink.err.take() {
+    if let Some(e) = bus.take_error() {
+        return Err(e).context("reading the input log or writing the output log");
+    }
+    if let Some(e) = obs.err.take() {
         return Err(e).context("writing output");
     }
     let names = p.message_names().clone();
@@ -227,18 +215,19 @@ pub fn replay<'a>(
         messages.insert(names[slot].clone(), p.stats(slot));
     }
     let est = p.estimate();
+    let c = p.counters();
     Ok(Summary {
-        lines: lineno,
-        frames: nframes,
-        malformed_lines: malformed,
-        malformed_examples: examples,
-        ignored_frames: p.counters().ignored_frames,
+        lines: bus.lines(),
+        frames: obs.frames,
+        malformed_lines: obs.malformed,
+        malformed_examples: obs.examples,
+        ignored_frames: c.ignored_frames,
         clock_steps: p.clock_steps(),
         messages,
-        estimates_accepted: p.counters().windows_accepted,
-        estimates_rejected: p.counters().windows_rejected,
-        standstills: p.counters().standstills,
-        leveling_frames: p.counters().frames_sent,
+        estimates_accepted: c.windows_accepted,
+        estimates_rejected: c.windows_rejected,
+        standstills: c.standstills,
+        leveling_frames: c.frames_sent,
         final_state: FinalState {
             road_to_body_pitch_deg: est.map(|e| e.road_to_body_deg),
             std_err_deg: est.map(|e| e.std_err_deg),
@@ -247,37 +236,6 @@ pub fn replay<'a>(
             standstill: p.is_standstill(),
         },
     })
-}
-
-/// Interfaces of a log in order of appearance; the index is the frame's source. At
-/// most `MAX_INTERFACES` are told apart (a vehicle has a handful); frames of any
-/// further interface are counted as ignored.
-#[derive(Default)]
-struct Interfaces {
-    index: std::collections::HashMap<String, u32>,
-    warned: bool,
-}
-
-const MAX_INTERFACES: usize = 256;
-
-impl Interfaces {
-    fn index(&mut self, name: &str) -> Option<u32> {
-        if let Some(&i) = self.index.get(name) {
-            return Some(i);
-        }
-        if self.index.len() >= MAX_INTERFACES {
-            if !self.warned {
-                self.warned = true;
-                tracing::warn!(
-                    "more than {MAX_INTERFACES} interfaces in the log; frames of the others are ignored"
-                );
-            }
-            return None;
-        }
-        let i = self.index.len() as u32;
-        self.index.insert(name.to_string(), i);
-        Some(i)
-    }
 }
 
 fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {

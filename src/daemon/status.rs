@@ -4,8 +4,8 @@
 //! from the frame path.
 
 use super::inputs::MsgStats;
-use super::live::LiveStats;
 use super::pipeline::Pipeline;
+use super::socket::LiveStats;
 use crate::can::codec::Status;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
