@@ -20,6 +20,8 @@ use std::path::Path;
 pub struct Calibration {
     pub reference_pitch_deg: f64,
     pub settled_s: f64,
+    /// Frame time of the frame it was read at, s.
+    pub at_s: f64,
 }
 
 /// The standstill a calibration needs must be a real one: 1 s to 1 h.
@@ -64,12 +66,13 @@ impl Observer for Settle {
             self.link_error = Some(e.clone());
             return ControlFlow::Break(());
         }
-        if let Received::Frame(_) = r
+        if let Received::Frame(f) = r
             && let Some((pitch, settled)) = p.standstill_pitch()
         {
             self.best = Some(Calibration {
                 reference_pitch_deg: pitch,
                 settled_s: settled,
+                at_s: f.t_s,
             });
             if settled >= self.duration_s {
                 return ControlFlow::Break(());

@@ -194,13 +194,15 @@ pub fn block_on<F: Future>(f: F) -> F::Output {
 /// A bus over a list of frames, in memory. Between frames it lets time pass in
 /// ticks of `tick_s` (as a live bus's idle timer does), and after the last frame
 /// until `end_s`; what is sent is kept.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 pub struct MemoryBus {
     frames: Vec<RxFrame>,
     next: usize,
     tick_s: Option<f64>,
     end_s: f64,
     clock_s: Option<f64>,
+    /// Fired when the list is exhausted; the bus then waits instead of ending.
+    at_end: Option<tokio::sync::oneshot::Sender<()>>,
     /// LEVELING frames sent: time, ID, extended, payload.
     pub sent: Vec<(f64, u32, bool, [u8; 8])>,
 }
@@ -223,6 +225,13 @@ impl MemoryBus {
         self.end_s = end_s;
         self
     }
+
+    /// When the list is exhausted, fire `tx` and wait (as a live bus would) instead
+    /// of ending the input: the caller's shutdown future ends the loop.
+    pub fn then_notify(mut self, tx: tokio::sync::oneshot::Sender<()>) -> Self {
+        self.at_end = Some(tx);
+        self
+    }
 }
 
 impl Bus for MemoryBus {
@@ -240,7 +249,13 @@ impl Bus for MemoryBus {
                 self.clock_s = Some(f.t_s);
                 Received::Frame(*f)
             }
-            None => Received::End,
+            None => match self.at_end.take() {
+                Some(tx) => {
+                    let _ = tx.send(());
+                    std::future::pending().await
+                }
+                None => Received::End,
+            },
         }
     }
 
