@@ -77,9 +77,12 @@ pub enum Command {
         /// Seconds of settled standstill to average.
         #[arg(long, default_value_t = 5.0)]
         duration: f64,
-        /// State file to write (default: the config's).
+        /// State file to seed (default: the config's state.path).
         #[arg(long)]
         state: Option<PathBuf>,
+        /// Calibration file to write (default: the config's state.calibration_path).
+        #[arg(long)]
+        calibration: Option<PathBuf>,
         /// Measure and print, store nothing.
         #[arg(long)]
         dry_run: bool,
@@ -218,6 +221,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             interface,
             duration,
             state,
+            calibration,
             dry_run,
         } => commands::calibrate::run(
             config.as_deref(),
@@ -225,6 +229,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             interface.as_deref(),
             duration,
             state.as_deref(),
+            calibration.as_deref(),
             dry_run,
         ),
         Command::CheckConfig { config } => commands::check_config::run(config.as_deref()),

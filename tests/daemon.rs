@@ -197,10 +197,22 @@ fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
     // 5 s at 300 ug/sqrt(Hz): the mean is good to well under 0.01 deg.
     assert!((cal.reference_pitch_deg - 0.6).abs() < 0.01, "{cal:?}");
     let d = tmp("cal");
-    leveld::daemon::calibrate::store(&mut p, &d.join("state.json"), &cal).unwrap();
-    match leveld::daemon::state::load(&d.join("state.json")) {
+    let (cal_path, state_path) = (d.join("calibration.json"), d.join("state.json"));
+    leveld::daemon::calibrate::store(&mut p, &cal_path, &state_path, &cal).unwrap();
+    // The reference lives in the calibration file; the state file holds the seeded estimate.
+    assert_eq!(
+        leveld::daemon::calibration::load(&cal_path).reference_pitch_deg(),
+        Some(cal.reference_pitch_deg)
+    );
+    match leveld::daemon::state::load(&state_path) {
         leveld::daemon::state::Loaded::State(s) => {
-            assert_eq!(s.reference_pitch_deg, Some(cal.reference_pitch_deg))
+            assert_eq!(s.reference_pitch_deg, None);
+            let mut q = pipeline();
+            q.restore(&s.estimator).unwrap();
+            assert_eq!(
+                q.estimate().map(|e| e.road_to_body_deg),
+                Some(cal.reference_pitch_deg)
+            );
         }
         other => panic!("{other:?}"),
     }

@@ -68,6 +68,11 @@ fn replay_run_and_calibrate_give_the_same_estimates_from_the_same_frames() {
     let (cfg, db) = config("same");
     // replay
     let mut p_replay = Pipeline::new(&cfg, &db).unwrap();
+    // `leveld replay` runs with the config's calibration file, as the daemon does;
+    // there is none in this folder.
+    p_replay.set_calibration(&leveld::daemon::calibration::load(
+        &cfg.state.calibration_path,
+    ));
     let mut input = std::io::BufReader::new(std::fs::File::open(root().join(LOG)).unwrap());
     let (mut events, mut out) = (Vec::new(), Vec::new());
     let opts = replay::ReplayOptions::default();
@@ -205,4 +210,81 @@ fn run_in_process_sends_at_10_hz_holds_on_input_loss_and_saves_on_shutdown() {
     assert_eq!(status["running"], false);
     assert_eq!(status["windows"], est.windows);
     assert_eq!(status["last_save"]["ok"], true);
+}
+
+/// Issue reproducer: a state file that cannot be parsed used to take the factory
+/// calibration with it, silently. The calibration now lives in its own file that the
+/// daemon never writes; a missing one is flagged, an unreadable one is FAULT.
+#[test]
+fn the_calibration_survives_a_corrupt_state_file_and_is_never_silently_lost() {
+    use leveld::daemon::calibration::{self, CalibrationFile};
+    let first_10_s: Vec<RxFrame> = frames().into_iter().filter(|f| f.t_s < 1010.0).collect();
+    let run = |cfg: &Config, db| {
+        let mut p = Pipeline::new(cfg, db).unwrap();
+        let (code, bus) = serve(cfg, &mut p, MemoryBus::new(first_10_s.clone()));
+        let last = bus.sent.last().unwrap().3;
+        let status: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&cfg.state.status_path).unwrap()).unwrap();
+        (code, p.output().decode(&last), status)
+    };
+
+    let (cfg, db) = config("cal");
+    let cal = CalibrationFile {
+        format: CalibrationFile::FORMAT,
+        reference_pitch_deg: 0.8,
+        settled_s: 30.0,
+        written_unix_s: 1.8e9,
+    };
+    calibration::save(&cfg.state.calibration_path, &cal).unwrap();
+    let cal_bytes = std::fs::read(&cfg.state.calibration_path).unwrap();
+    for bad_state in [&b""[..], b"{\"format\":1,\"estim", b"null", b"\x00\xff"] {
+        std::fs::write(&cfg.state.path, bad_state).unwrap();
+        let (code, out, status) = run(&cfg, &db);
+        assert_eq!(code, 0);
+        assert_eq!(out.uncalibrated, Some(false), "state {bad_state:?}");
+        assert_ne!(out.status, Status::Fault as u64);
+        assert_eq!(status["reference_pitch_deg"], 0.8);
+        assert_eq!(status["calibration"], "ok");
+        assert_eq!(
+            std::fs::read(&cfg.state.calibration_path).unwrap(),
+            cal_bytes,
+            "the daemon never rewrites the calibration"
+        );
+    }
+
+    // No calibration: the configured reference, flagged.
+    std::fs::remove_file(&cfg.state.calibration_path).unwrap();
+    let (_, out, status) = run(&cfg, &db);
+    assert_eq!(out.uncalibrated, Some(true));
+    assert_ne!(out.status, Status::Fault as u64);
+    assert!(
+        status["calibration"]
+            .as_str()
+            .unwrap()
+            .starts_with("missing")
+    );
+    assert!(
+        !cfg.state.calibration_path.exists(),
+        "not created by the daemon"
+    );
+
+    // An unreadable calibration: FAULT, flagged, the file left for a person.
+    for bad in [
+        &b""[..],
+        b"null",
+        b"{\"format\":1,\"reference_pitch_deg\":0.8}",
+    ] {
+        std::fs::write(&cfg.state.calibration_path, bad).unwrap();
+        let (_, out, status) = run(&cfg, &db);
+        assert_eq!(out.status, Status::Fault as u64, "calibration {bad:?}");
+        assert_eq!(out.uncalibrated, Some(true));
+        assert_eq!(status["status"], "FAULT");
+        assert!(
+            status["calibration"]
+                .as_str()
+                .unwrap()
+                .starts_with("unreadable")
+        );
+        assert_eq!(std::fs::read(&cfg.state.calibration_path).unwrap(), bad);
+    }
 }

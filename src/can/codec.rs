@@ -59,6 +59,9 @@ pub struct OutputMessage {
     pub checksum: String,
     #[serde(default = "default_out_checksum")]
     pub checksum_kind: ChecksumKind,
+    /// One-bit flag set while no end-of-line calibration is in use (optional).
+    #[serde(default)]
+    pub uncalibrated: Option<String>,
 }
 
 fn default_period() -> u32 {
@@ -231,6 +234,7 @@ pub struct OutputCodec {
     status: SignalCodec,
     counter: SignalCodec,
     crc: SignalCodec,
+    uncalibrated: Option<SignalCodec>,
     kind: ChecksumKind,
 }
 
@@ -245,6 +249,8 @@ pub struct LevelingFrame {
     pub counter: u64,
     pub crc: u64,
     pub crc_ok: bool,
+    /// The `uncalibrated` flag, when the message carries it.
+    pub uncalibrated: Option<bool>,
 }
 
 impl OutputCodec {
@@ -262,6 +268,7 @@ impl OutputCodec {
             status: s(&o.status)?,
             counter: s(&o.counter)?,
             crc: s(&o.checksum)?,
+            uncalibrated: o.uncalibrated.as_deref().map(s).transpose()?,
             kind: o.checksum_kind,
         })
     }
@@ -280,8 +287,12 @@ impl OutputCodec {
         count: u64,
         status: Status,
         counter: u8,
+        uncalibrated: bool,
     ) -> [u8; 8] {
         let mut d = [0u8; 8];
+        if let Some(u) = &self.uncalibrated {
+            u.encode_raw(&mut d, u64::from(uncalibrated));
+        }
         self.road_to_body.encode(&mut d, r2b);
         self.correction.encode(&mut d, corr);
         self.slope.encode(&mut d, slope);
@@ -304,6 +315,7 @@ impl OutputCodec {
             counter: self.counter.raw(d),
             crc: self.crc.raw(d),
             crc_ok: self.crc.raw(d) == self.crc_of(d) as u64,
+            uncalibrated: self.uncalibrated.as_ref().map(|u| u.raw(d) != 0),
         }
     }
 }

@@ -9,6 +9,7 @@ pub fn run(
     interface: Option<&str>,
     duration_s: f64,
     state: Option<&std::path::Path>,
+    calibration: Option<&std::path::Path>,
     dry_run: bool,
 ) -> Result<i32> {
     use crate::daemon::{calibrate, pipeline::Pipeline};
@@ -40,9 +41,15 @@ pub fn run(
         cal.reference_pitch_deg, cal.settled_s
     );
     if !dry_run {
-        let path = state.map_or_else(|| cfg.state.path.clone(), |p| p.to_path_buf());
-        calibrate::store(&mut p, &path, &cal)?;
-        println!("stored in {}", path.display());
+        let state_path = state.map_or_else(|| cfg.state.path.clone(), |p| p.to_path_buf());
+        let cal_path =
+            calibration.map_or_else(|| cfg.state.calibration_path.clone(), |p| p.to_path_buf());
+        calibrate::store(&mut p, &cal_path, &state_path, &cal)?;
+        println!(
+            "stored in {}; estimate seeded in {}",
+            cal_path.display(),
+            state_path.display()
+        );
     }
     Ok(0)
 }

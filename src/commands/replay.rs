@@ -16,6 +16,11 @@ pub fn run(
     use anyhow::Context;
     let (cfg, db, _src) = crate::daemon::load(config)?;
     let mut p = Pipeline::new(&cfg, &db)?;
+    // As the daemon with this config would: the calibration file's reference pitch,
+    // or the config's with the Uncalibrated flag.
+    p.set_calibration(&crate::daemon::calibration::load(
+        &cfg.state.calibration_path,
+    ));
     let mut reader: Box<dyn std::io::BufRead> = if input.as_os_str() == "-" {
         Box::new(std::io::stdin().lock())
     } else {

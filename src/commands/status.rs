@@ -42,6 +42,12 @@ pub fn run(config: Option<&Path>, json: bool) -> Result<i32> {
         Err(e) => (false, format!("unknown: {e}")),
     };
     let saved = saved_state(&cfg, &db);
+    let cal = crate::daemon::calibration::load(&cfg.state.calibration_path);
+    let calibration = serde_json::json!({
+        "path": cfg.state.calibration_path.display().to_string(),
+        "reference_pitch_deg": cal.reference_pitch_deg(),
+        "summary": cal.describe(),
+    });
     if json {
         let v = serde_json::json!({
             "running": running,
@@ -49,6 +55,7 @@ pub fn run(config: Option<&Path>, json: bool) -> Result<i32> {
             "report": published.as_ref().ok().and_then(|r| r.as_ref()),
             "report_age_s": published.as_ref().ok().and_then(|r| r.as_ref()).map(|r| now - r.updated_unix_s),
             "saved": saved,
+            "calibration": calibration,
         });
         writeln!(out, "{v}")?;
     } else {
@@ -66,6 +73,19 @@ pub fn run(config: Option<&Path>, json: bool) -> Result<i32> {
                 "saved state: {}",
                 saved["summary"].as_str().unwrap_or("-")
             )?;
+            match cal.reference_pitch_deg() {
+                Some(r) => writeln!(
+                    out,
+                    "calibration file: reference pitch {r:+.3} deg ({})",
+                    cfg.state.calibration_path.display()
+                )?,
+                None => writeln!(
+                    out,
+                    "calibration file: {} ({})",
+                    cal.describe(),
+                    cfg.state.calibration_path.display()
+                )?,
+            }
         }
     }
     out.flush()?;
@@ -98,11 +118,13 @@ fn write_report(out: &mut impl Write, r: &StatusReport, now: f64, running: bool)
     match r.reference_pitch_deg {
         Some(c) => writeln!(
             out,
-            "calibration: reference pitch {c:+.3} deg (leveld calibrate)"
+            "calibration: reference pitch {c:+.3} deg ({})",
+            r.calibration
         )?,
         None => writeln!(
             out,
-            "calibration: none stored; the config's reference pitch"
+            "calibration: {}; the config's reference pitch is used",
+            r.calibration
         )?,
     }
     writeln!(out, "CAN: {}", r.can)?;
@@ -177,7 +199,7 @@ fn saved_state(
                 None => "no estimate".to_string(),
             };
             let cal = match st.reference_pitch_deg {
-                Some(c) => format!(", reference pitch {c:+.3} deg"),
+                Some(c) => format!(", reference pitch {c:+.3} deg kept by an earlier leveld"),
                 None => String::new(),
             };
             let age = modified.map_or(String::new(), |m| {

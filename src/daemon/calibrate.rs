@@ -2,9 +2,10 @@
 //!
 //! The vehicle stands on a level floor, so the road-to-body pitch equals the IMU
 //! pitch from gravity. The pipeline runs until a standstill has settled for the
-//! requested time; the result is stored in the state file as the reference pitch and
-//! seeds the estimate.
+//! requested time; the result is stored in the calibration file as the reference
+//! pitch and seeds the estimate in the state file.
 
+use super::calibration::{self, CalibrationFile};
 use super::frame_loop::{self, LinkEvent, Observer, Received};
 use super::log_bus::LogBus;
 use super::pipeline::Pipeline;
@@ -120,10 +121,24 @@ pub fn not_settled(duration_s: f64, best: Option<Calibration>) -> anyhow::Error 
     }
 }
 
-/// Store a calibration: reference pitch and a seeded estimate.
-pub fn store(p: &mut Pipeline, path: &Path, cal: &Calibration) -> Result<()> {
+/// Store a calibration: the calibration file (the reference pitch, which only this
+/// writes) and a state file whose estimate is seeded with it, worth a few windows.
+pub fn store(
+    p: &mut Pipeline,
+    calibration_path: &Path,
+    state_path: &Path,
+    cal: &Calibration,
+) -> Result<()> {
     let weight = 4.0;
-    if let Loaded::Corrupt { reason, moved_to } = state::load(path) {
+    let file = CalibrationFile {
+        format: CalibrationFile::FORMAT,
+        reference_pitch_deg: cal.reference_pitch_deg,
+        settled_s: cal.settled_s,
+        written_unix_s: super::status::unix_now_s(),
+    };
+    calibration::save(calibration_path, &file)
+        .with_context(|| format!("saving the calibration to {}", calibration_path.display()))?;
+    if let Loaded::Corrupt { reason, moved_to } = state::load(state_path) {
         tracing::warn!(
             ?moved_to,
             "previous state unusable ({reason}); replaced by the calibration"
@@ -133,7 +148,8 @@ pub fn store(p: &mut Pipeline, path: &Path, cal: &Calibration) -> Result<()> {
     let st = PersistedState {
         format: PersistedState::FORMAT,
         estimator: p.estimator_state(),
-        reference_pitch_deg: Some(cal.reference_pitch_deg),
+        reference_pitch_deg: None,
     };
-    state::save(path, &st).with_context(|| format!("saving the calibration to {}", path.display()))
+    state::save(state_path, &st)
+        .with_context(|| format!("saving the seeded state to {}", state_path.display()))
 }

@@ -61,6 +61,10 @@ pub struct StateConfig {
     /// must exist (the unit's RuntimeDirectory). Empty: publish nothing.
     #[serde(default = "default_status_path")]
     pub status_path: PathBuf,
+    /// The end-of-line calibration, written only by `leveld calibrate`. Default:
+    /// `calibration.json` next to the state file.
+    #[serde(default)]
+    pub calibration_path: PathBuf,
 }
 
 fn default_status_path() -> PathBuf {
@@ -143,6 +147,23 @@ impl Config {
                     "{status:?} names no file; give a file path such as /run/leveld/status.json, or \"\" to publish none"
                 ),
             });
+        }
+        if cfg.state.calibration_path.as_os_str().is_empty() {
+            cfg.state.calibration_path = cfg.state.path.with_file_name("calibration.json");
+        } else if names_no_file(&cfg.state.calibration_path)
+            || cfg.state.calibration_path == cfg.state.path
+        {
+            return Err(ConfigError::Field {
+                path: path.into(),
+                field: "state.calibration_path".into(),
+                msg: format!(
+                    "{:?} must name a file other than state.path, such as /var/lib/leveld/calibration.json",
+                    cfg.state.calibration_path
+                ),
+            });
+        }
+        if cfg.state.calibration_path.is_relative() {
+            cfg.state.calibration_path = base.join(&cfg.state.calibration_path);
         }
         if cfg.can.dbc.is_relative() {
             cfg.can.dbc = base.join(&cfg.can.dbc);

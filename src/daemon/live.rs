@@ -6,6 +6,7 @@
 //! off the loop after every change, publishes what `leveld status` reads, serves the
 //! systemd notify protocol, and saves once more on shutdown.
 
+use super::calibration::{self, Calibration};
 use super::config::Config;
 use super::frame_loop::{self, Bus, Ended, LinkEvent, Observer, Received};
 use super::pipeline::Pipeline;
@@ -45,15 +46,13 @@ fn watchdog_pet(timeout: Option<Duration>) -> Option<Duration> {
     }
 }
 
-/// Restore persisted state into the pipeline; returns the end-of-line reference pitch.
-/// The reference survives an estimator part that cannot be used: the calibration is
-/// kept in the next save even though the file itself is moved aside.
+/// Restore persisted state into the pipeline. Returns the reference pitch an earlier
+/// leveld kept in the state file, if any: it survives an estimator part that cannot be
+/// used, and is carried in the next saves until `leveld calibrate` writes the
+/// calibration file.
 pub fn restore(p: &mut Pipeline, path: &Path) -> Option<f64> {
     match state::load(path) {
         Loaded::State(st) => {
-            if let Some(r) = st.reference_pitch_deg {
-                p.set_reference_pitch_deg(r);
-            }
             match p.restore(&st.estimator) {
                 Ok(()) => {
                     tracing::info!(path = %path.display(), estimate = ?p.estimate(), "state restored")
@@ -130,8 +129,29 @@ pub async fn serve<B: Bus>(
     stats: SharedStats,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> Result<i32> {
-    let reference = restore(p, &cfg.state.path);
-    let mut d = Daemon::new(cfg, reference, stats);
+    let legacy = restore(p, &cfg.state.path);
+    let calibration = match (calibration::load(&cfg.state.calibration_path), legacy) {
+        (Calibration::Missing, Some(r)) => Calibration::Calibrated {
+            reference_pitch_deg: r,
+            legacy: true,
+        },
+        (c, _) => c,
+    };
+    match &calibration {
+        Calibration::Calibrated { .. } => {
+            tracing::info!(reference_pitch_deg = ?calibration.reference_pitch_deg(), "calibration: {}", calibration.describe())
+        }
+        Calibration::Missing => tracing::warn!(
+            path = %cfg.state.calibration_path.display(),
+            "no end-of-line calibration: using the configured reference pitch {:+.3} deg, LEVELING flags it uncalibrated",
+            cfg.leveling.reference_pitch_deg
+        ),
+        Calibration::Unreadable(why) => tracing::error!(
+            "end-of-line calibration unreadable ({why}): FAULT until `leveld calibrate` writes a new one"
+        ),
+    }
+    p.set_calibration(&calibration);
+    let mut d = Daemon::new(cfg, calibration, legacy, stats);
     let ended = frame_loop::run(p, bus, &mut d, shutdown).await;
     if ended == Ended::Input {
         tracing::warn!("the input ended; stopping");
@@ -142,6 +162,8 @@ pub async fn serve<B: Bus>(
 /// The daemon's side of the frame loop.
 struct Daemon {
     state_path: PathBuf,
+    calibration: Calibration,
+    /// A reference pitch from an earlier leveld's state file, carried in every save.
     reference: Option<f64>,
     saver: Saver,
     publisher: Publisher,
@@ -155,10 +177,16 @@ struct Daemon {
 }
 
 impl Daemon {
-    fn new(cfg: &Config, reference: Option<f64>, stats: SharedStats) -> Self {
+    fn new(
+        cfg: &Config,
+        calibration: Calibration,
+        reference: Option<f64>,
+        stats: SharedStats,
+    ) -> Self {
         let now = Instant::now();
         Self {
             state_path: cfg.state.path.clone(),
+            calibration,
             reference,
             saver: Saver::start(cfg.state.path.clone()),
             publisher: Publisher {
@@ -222,8 +250,9 @@ impl Daemon {
         if now - self.last_publish >= PUBLISH_EVERY {
             self.last_publish = now;
             let live = self.stats.get();
+            let last = self.saver.last();
             self.publisher
-                .publish(p, &live, self.reference, self.saver.last().as_ref(), true);
+                .publish(p, &live, &self.calibration, last.as_ref(), true);
         }
         if now - self.last_notify >= NOTIFY_STATUS_EVERY {
             self.last_notify = now;
@@ -255,7 +284,7 @@ impl Daemon {
         let saved = save_now(&self.state_path, &persisted(p, self.reference));
         let mut publisher = self.publisher;
         publisher.can = "closed: stopped".into();
-        publisher.publish(p, &live, self.reference, Some(&saved), false);
+        publisher.publish(p, &live, &self.calibration, Some(&saved), false);
         if saved.ok {
             tracing::info!(path = %self.state_path.display(), status = ?p.status(), "state saved; exiting");
             0
@@ -369,7 +398,7 @@ impl Publisher {
         &mut self,
         p: &Pipeline,
         live: &LiveStats,
-        reference: Option<f64>,
+        calibration: &Calibration,
         last_save: Option<&SaveInfo>,
         running: bool,
     ) {
@@ -379,7 +408,7 @@ impl Publisher {
         let cx = status::Context {
             started_unix_s: self.started_unix_s,
             running,
-            reference_pitch_deg: reference,
+            calibration,
             can: &self.can,
             state_path: &self.state_path,
             last_save,

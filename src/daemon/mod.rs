@@ -2,6 +2,7 @@
 //! replays, persisted state.
 
 pub mod calibrate;
+pub mod calibration;
 pub mod clock;
 pub mod config;
 pub mod frame_loop;

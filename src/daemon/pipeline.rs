@@ -4,6 +4,7 @@
 //! same frames with the same stamps give the same output. Only configured IDs are
 //! decoded, through codecs prepared at start; the per-frame path does not allocate.
 
+use super::calibration::Calibration;
 use super::clock::{FrameClock, Mapped};
 use super::config::Config;
 use super::inputs::{ACC, GYR, Inputs, MsgStats, WHEELS};
@@ -43,6 +44,10 @@ pub struct Pipeline {
     leveling: super::config::Leveling,
     reference_pitch_deg: f64,
     fault: bool,
+    /// No end-of-line calibration in use (LEVELING `uncalibrated` flag).
+    uncalibrated: bool,
+    /// The calibration file is unreadable: FAULT.
+    calibration_fault: bool,
     clock_s: Option<f64>,
     frame_clock: FrameClock,
     bus_off: bool,
@@ -70,6 +75,8 @@ impl Pipeline {
             leveling: cfg.leveling.clone(),
             reference_pitch_deg: cfg.leveling.reference_pitch_deg,
             fault: false,
+            uncalibrated: false,
+            calibration_fault: false,
             clock_s: None,
             frame_clock: FrameClock::new(cfg.leveling.max_clock_step_s),
             bus_off: false,
@@ -114,6 +121,16 @@ impl Pipeline {
 
     pub fn set_reference_pitch_deg(&mut self, v: f64) {
         self.reference_pitch_deg = v;
+    }
+
+    /// Run with `cal`: a calibrated reference pitch; a missing one leaves the
+    /// config's with the `uncalibrated` flag set; an unreadable one is FAULT.
+    pub fn set_calibration(&mut self, cal: &Calibration) {
+        self.uncalibrated = cal.reference_pitch_deg().is_none();
+        self.calibration_fault = matches!(cal, Calibration::Unreadable(_));
+        if let Some(r) = cal.reference_pitch_deg() {
+            self.reference_pitch_deg = r;
+        }
     }
 
     /// Bus-off or another fault outside the inputs: FAULT until cleared.
@@ -204,7 +221,7 @@ impl Pipeline {
 
     /// Current status as sent.
     pub fn status(&self) -> Status {
-        if self.fault {
+        if self.fault || self.calibration_fault {
             return Status::Fault;
         }
         if self.inputs.any_unusable() {
@@ -246,6 +263,7 @@ impl Pipeline {
             e.map_or(0, |e| e.windows),
             self.status(),
             self.out_counter,
+            self.uncalibrated,
         )
     }
 

@@ -94,21 +94,37 @@ pub fn move_aside(path: &Path) -> Option<PathBuf> {
 
 /// Write the state atomically.
 pub fn save(path: &Path, st: &PersistedState) -> std::io::Result<()> {
+    write_json_atomic(path, st)
+}
+
+/// Write `value` as JSON to `path` atomically: a temp file of this process and
+/// thread next to it, fsync, rename, fsync of the folder. Two writers of one path
+/// (the daemon and `leveld calibrate`) never share a temp file.
+pub fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir)?;
-    let mut tmp_name = path.file_name().unwrap_or_default().to_os_string();
-    tmp_name.push(".tmp");
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(path.file_name().unwrap_or_default());
+    tmp_name.push(format!(
+        ".tmp-{}-{:?}",
+        std::process::id(),
+        std::thread::current().id()
+    ));
     let tmp = path.with_file_name(tmp_name);
-    {
+    let written = (|| {
         let mut f = std::fs::File::create(&tmp)?;
-        serde_json::to_writer_pretty(&mut f, st).map_err(std::io::Error::other)?;
+        serde_json::to_writer_pretty(&mut f, value).map_err(std::io::Error::other)?;
         f.write_all(b"\n")?;
         f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
     }
-    std::fs::rename(&tmp, path)?;
+    written?;
     // Make the rename itself durable.
     std::fs::File::open(dir)?.sync_all()
 }

@@ -3,6 +3,7 @@
 //! atomically once a second and at shutdown. It is written from the timer, never
 //! from the frame path.
 
+use super::calibration::Calibration;
 use super::inputs::MsgStats;
 use super::pipeline::Pipeline;
 use super::socket::LiveStats;
@@ -49,6 +50,9 @@ pub struct StatusReport {
     pub windows: Option<u64>,
     /// End-of-line reference pitch from `leveld calibrate`, deg (None: the config's).
     pub reference_pitch_deg: Option<f64>,
+    /// "ok", or why no calibration is in use.
+    #[serde(default)]
+    pub calibration: String,
     pub inputs: Vec<InputHealth>,
     /// CAN: "open", or why it is not.
     pub can: String,
@@ -75,7 +79,7 @@ pub fn unix_now_s() -> f64 {
 pub struct Context<'a> {
     pub started_unix_s: f64,
     pub running: bool,
-    pub reference_pitch_deg: Option<f64>,
+    pub calibration: &'a Calibration,
     pub can: &'a str,
     pub state_path: &'a Path,
     pub last_save: Option<&'a SaveInfo>,
@@ -116,7 +120,8 @@ pub fn report(p: &Pipeline, live: &LiveStats, cx: &Context) -> StatusReport {
         road_to_body_deg: est.map(|e| e.road_to_body_deg),
         std_err_deg: est.map(|e| e.std_err_deg),
         windows: est.map(|e| e.windows),
-        reference_pitch_deg: cx.reference_pitch_deg,
+        reference_pitch_deg: cx.calibration.reference_pitch_deg(),
+        calibration: cx.calibration.describe(),
         inputs,
         can: cx.can.to_string(),
         state_path: cx.state_path.display().to_string(),
@@ -183,10 +188,14 @@ mod tests {
             crate::can::dbc::Database::parse(Path::new("leveld.dbc"), crate::daemon::DEFAULT_DBC)
                 .unwrap();
         let p = Pipeline::new(&cfg, &db).unwrap();
+        let cal = Calibration::Calibrated {
+            reference_pitch_deg: 0.25,
+            legacy: false,
+        };
         let cx = Context {
             started_unix_s: 1.0,
             running: true,
-            reference_pitch_deg: Some(0.25),
+            calibration: &cal,
             can: "open",
             state_path: Path::new("/var/lib/leveld/state.json"),
             last_save: None,
