@@ -58,6 +58,10 @@ pub enum Command {
         /// Stop at the first malformed line.
         #[arg(long)]
         strict: bool,
+        /// Replay with this calibration file, as the daemon would read it (default:
+        /// none: the config's reference pitch, flagged uncalibrated).
+        #[arg(long)]
+        calibration: Option<PathBuf>,
     },
     /// Run the daemon on SocketCAN (systemd: Type=notify).
     Run {
@@ -206,6 +210,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             interface,
             format,
             strict,
+            calibration,
         } => commands::replay::run(
             &input,
             config.as_deref(),
@@ -213,6 +218,7 @@ pub fn run(cli: Cli) -> Result<i32> {
             interface,
             format == Format::Json,
             strict,
+            calibration.as_deref(),
         ),
         Command::Run { config } => crate::daemon::live::run(config.as_deref()),
         Command::Calibrate {

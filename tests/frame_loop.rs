@@ -26,6 +26,7 @@ fn config(tag: &str) -> (Config, leveld::can::dbc::Database) {
     std::fs::create_dir_all(&d).unwrap();
     cfg.state.path = d.join("state.json");
     cfg.state.status_path = d.join("status.json");
+    cfg.state.calibration_path = d.join("calibration.json");
     (cfg, db)
 }
 

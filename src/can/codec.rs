@@ -120,10 +120,44 @@ pub struct MsgCodec {
     pub timeout_s: f64,
 }
 
+/// Mask of the bits of an 8-byte frame a signal occupies.
 fn signal_bits(c: &SignalCodec) -> u64 {
     let mut probe = [0u8; 8];
-    c.encode_raw(&mut probe, u64::MAX >> (64 - c.size as u32));
+    c.encode_raw(
+        &mut probe,
+        u64::MAX >> 64u32.saturating_sub(c.size as u32).min(63),
+    );
     u64::from_le_bytes(probe)
+}
+
+/// The signals that play a role in one message must not share a bit: one signal
+/// cannot be two roles, nor a value overlap its counter or checksum.
+fn check_disjoint(
+    db: &Database,
+    message: &str,
+    roles: &[(&str, &str, SignalCodec)],
+) -> Result<(), DbcError> {
+    for (i, (role_a, name_a, a)) in roles.iter().enumerate() {
+        for (role_b, name_b, b) in &roles[..i] {
+            if signal_bits(a) & signal_bits(b) != 0 {
+                let what = if name_a == name_b {
+                    format!(
+                        "signal `{message}.{name_a}` is given two roles ({role_b} and {role_a}); each role needs its own signal"
+                    )
+                } else {
+                    format!(
+                        "signals `{message}.{name_b}` ({role_b}) and `{message}.{name_a}` ({role_a}) share bits; the signals leveld reads must not overlap"
+                    )
+                };
+                return Err(DbcError::Invalid {
+                    path: db.path.clone(),
+                    line: None,
+                    what,
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 fn concat(parts: &[SignalCodec], d: &[u8]) -> u64 {
@@ -155,6 +189,17 @@ impl MsgCodec {
             checksum[i] = get(n)?;
         }
         let (n_counter, n_checksum) = (m.counter.len().min(2), m.checksum.len().min(2));
+        let mut roles = Vec::new();
+        for (i, n) in m.signals.iter().enumerate().take(4) {
+            roles.push(("value", n.as_str(), values[i]));
+        }
+        for (i, n) in m.counter.iter().enumerate().take(2) {
+            roles.push(("counter", n.as_str(), counter[i]));
+        }
+        for (i, n) in m.checksum.iter().enumerate().take(2) {
+            roles.push(("checksum", n.as_str(), checksum[i]));
+        }
+        check_disjoint(db, &m.message, &roles)?;
         let mut excluded = 0u64;
         for c in counter[..n_counter].iter().chain(&checksum[..n_checksum]) {
             excluded |= signal_bits(c);
@@ -257,7 +302,18 @@ impl OutputCodec {
     pub fn build(db: &Database, o: &OutputMessage) -> Result<Self, DbcError> {
         let info = db.message(&o.message)?;
         let s = |n: &str| db.signal(&o.message, n);
-        Ok(Self {
+        let invalid = |what: String| DbcError::Invalid {
+            path: db.path.clone(),
+            line: None,
+            what,
+        };
+        if info.len != 8 {
+            return Err(invalid(format!(
+                "output message `{}` has {} bytes; LEVELING is an 8-byte message",
+                o.message, info.len
+            )));
+        }
+        let codec = Self {
             id: info.id,
             extended: info.extended,
             period_s: o.period_ms as f64 / 1000.0,
@@ -270,7 +326,27 @@ impl OutputCodec {
             crc: s(&o.checksum)?,
             uncalibrated: o.uncalibrated.as_deref().map(s).transpose()?,
             kind: o.checksum_kind,
-        })
+        };
+        if signal_bits(&codec.crc) != 0xFF << 56 {
+            return Err(invalid(format!(
+                "output checksum `{}.{}` must be the 8 bits of byte 7: the CRC covers bytes 0-6",
+                o.message, o.checksum
+            )));
+        }
+        let mut roles = vec![
+            ("road_to_body", o.road_to_body.as_str(), codec.road_to_body),
+            ("level_correction", &o.level_correction, codec.correction),
+            ("road_slope", &o.road_slope, codec.slope),
+            ("estimate_count", &o.estimate_count, codec.count),
+            ("status", &o.status, codec.status),
+            ("counter", &o.counter, codec.counter),
+            ("checksum", &o.checksum, codec.crc),
+        ];
+        if let (Some(n), Some(u)) = (&o.uncalibrated, codec.uncalibrated) {
+            roles.push(("uncalibrated", n, u));
+        }
+        check_disjoint(db, &o.message, &roles)?;
+        Ok(codec)
     }
 
     /// The CRC over bytes 0-6 (the config allows only CRC kinds for the output).
@@ -297,7 +373,7 @@ impl OutputCodec {
         self.correction.encode(&mut d, corr);
         self.slope.encode(&mut d, slope);
         self.count
-            .encode_raw(&mut d, count.min((1u64 << self.count.size) - 1));
+            .encode_raw(&mut d, count.min(u64::MAX >> (64 - self.count.size as u32)));
         self.status.encode_raw(&mut d, status as u64);
         self.counter.encode_raw(&mut d, (counter & 15) as u64);
         let c = self.crc_of(&d);

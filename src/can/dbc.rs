@@ -29,6 +29,12 @@ pub enum DbcError {
         signal: String,
         known: String,
     },
+    #[error("DBC {path}{}: {what}", line.map_or(String::new(), |l| format!(" line {l}")))]
+    Invalid {
+        path: PathBuf,
+        line: Option<usize>,
+        what: String,
+    },
     #[error("DBC {path}: signal `{message}.{signal}` does not fit in the message's {len} bytes")]
     DoesNotFit {
         path: PathBuf,
@@ -43,6 +49,28 @@ pub enum DbcError {
 pub struct Database {
     pub path: PathBuf,
     pub dbc: Dbc,
+    /// Each `BO_` line as written: line number, ID as written, message name. The
+    /// parser keeps standard IDs in 16 bits, so an ID out of range is seen only here.
+    bo_lines: Vec<(usize, u64, String)>,
+}
+
+/// Largest standard (11-bit) and extended (29-bit) identifiers.
+const MAX_STANDARD_ID: u64 = 0x7FF;
+const MAX_EXTENDED_ID: u64 = 0x1FFF_FFFF;
+/// Bit 31 of a `BO_` ID marks it extended.
+const EXTENDED_FLAG: u64 = 1 << 31;
+
+/// `BO_ <id> <name>:` lines of a DBC text.
+fn bo_lines(text: &str) -> Vec<(usize, u64, String)> {
+    text.lines()
+        .enumerate()
+        .filter_map(|(i, l)| {
+            let mut it = l.trim_start().strip_prefix("BO_ ")?.split_whitespace();
+            let id = it.next()?.parse::<u64>().ok()?;
+            let name = it.next()?.trim_end_matches(':').to_string();
+            Some((i + 1, id, name))
+        })
+        .collect()
 }
 
 /// A message resolved from the DBC.
@@ -95,7 +123,58 @@ impl Database {
         Ok(Self {
             path: path.into(),
             dbc,
+            bo_lines: bo_lines(text),
         })
+    }
+
+    fn invalid(&self, line: Option<usize>, what: String) -> DbcError {
+        DbcError::Invalid {
+            path: self.path.clone(),
+            line,
+            what,
+        }
+    }
+
+    /// The ID of message `name` as written must be a CAN ID (standard up to 0x7FF, or
+    /// extended with bit 31 set) that no other message of the file uses.
+    fn check_id(&self, name: &str) -> Result<(), DbcError> {
+        let Some(&(line, raw, _)) = self.bo_lines.iter().find(|b| b.2 == name) else {
+            return Ok(());
+        };
+        let id = |raw: u64| {
+            if raw & EXTENDED_FLAG != 0 {
+                (raw & !EXTENDED_FLAG, true)
+            } else {
+                (raw, false)
+            }
+        };
+        let (value, extended) = id(raw);
+        let max = if extended {
+            MAX_EXTENDED_ID
+        } else {
+            MAX_STANDARD_ID
+        };
+        if value > max {
+            return Err(self.invalid(
+                Some(line),
+                format!(
+                    "message `{name}` has ID {raw} (0x{raw:X}), out of range: a standard ID is at most 0x7FF; an extended one is written with bit 31 set (0x80000000 + ID, ID at most 0x1FFFFFFF)"
+                ),
+            ));
+        }
+        if let Some((other, _, other_name)) = self
+            .bo_lines
+            .iter()
+            .find(|b| b.0 != line && id(b.1) == (value, extended))
+        {
+            return Err(self.invalid(
+                Some(line),
+                format!(
+                    "message `{name}` has ID 0x{value:X}, as has `{other_name}` on line {other}; each ID must name one message"
+                ),
+            ));
+        }
+        Ok(())
     }
 
     fn message_by_name(&self, name: &str) -> Result<&can_dbc::Message, DbcError> {
@@ -118,6 +197,16 @@ impl Database {
 
     pub fn message(&self, name: &str) -> Result<MessageInfo, DbcError> {
         let m = self.message_by_name(name)?;
+        self.check_id(name)?;
+        if m.size > 64 {
+            return Err(self.invalid(
+                self.line_of(name),
+                format!(
+                    "message `{name}` is {} bytes long; a CAN frame has at most 64",
+                    m.size
+                ),
+            ));
+        }
         let (id, extended) = match m.id {
             MessageId::Standard(id) => (id as u32, false),
             MessageId::Extended(id) => (id, true),
@@ -128,6 +217,11 @@ impl Database {
             extended,
             len: m.size.min(64) as u8,
         })
+    }
+
+    /// Line of the `BO_` of message `name`.
+    fn line_of(&self, name: &str) -> Option<usize> {
+        self.bo_lines.iter().find(|b| b.2 == name).map(|b| b.0)
     }
 
     /// `GenMsgCycleTime` of a message, ms, when the DBC gives one above zero.
@@ -159,9 +253,38 @@ impl Database {
                     .collect::<Vec<_>>()
                     .join(", "),
             })?;
+        let bad = |what: String| {
+            Err(self.invalid(
+                self.line_of(message),
+                format!("signal `{message}.{signal}` {what}"),
+            ))
+        };
+        if !(1..=64).contains(&s.size) {
+            return bad(format!("has {} bits; a signal has 1 to 64", s.size));
+        }
+        if s.start_bit >= 512 {
+            return bad(format!(
+                "starts at bit {}, past any frame (64 bytes end at bit 511)",
+                s.start_bit
+            ));
+        }
+        if !s.factor.is_finite() || s.factor == 0.0 || !s.offset.is_finite() {
+            return bad(format!(
+                "has factor {} and offset {}; the factor must be finite and not 0, the offset finite",
+                s.factor, s.offset
+            ));
+        }
+        if !matches!(
+            s.multiplexer_indicator,
+            can_dbc::MultiplexIndicator::Plain | can_dbc::MultiplexIndicator::Multiplexor
+        ) {
+            return bad(
+                "is multiplexed: it is only present for one value of its multiplexor, which leveld does not read; give leveld a plain signal".into(),
+            );
+        }
         let codec = SignalCodec {
             start_bit: s.start_bit as u16,
-            size: s.size.clamp(1, 64) as u8,
+            size: s.size as u8,
             little_endian: matches!(s.byte_order, ByteOrder::LittleEndian),
             signed: matches!(s.value_type, ValueType::Signed),
             factor: s.factor,

@@ -11,16 +11,19 @@ pub fn run(
     interface: Option<String>,
     json: bool,
     strict: bool,
+    calibration: Option<&std::path::Path>,
 ) -> Result<i32> {
     use crate::daemon::{pipeline::Pipeline, replay};
     use anyhow::Context;
     let (cfg, db, _src) = crate::daemon::load(config)?;
     let mut p = Pipeline::new(&cfg, &db)?;
-    // As the daemon with this config would: the calibration file's reference pitch,
-    // or the config's with the Uncalibrated flag.
-    p.set_calibration(&crate::daemon::calibration::load(
-        &cfg.state.calibration_path,
-    ));
+    // With --calibration, that file's reference pitch, as the daemon would read it;
+    // without, the config's, flagged uncalibrated. A replay never depends on the
+    // files of the machine it runs on.
+    p.set_calibration(&match calibration {
+        Some(path) => crate::daemon::calibration::load(path),
+        None => crate::daemon::calibration::Calibration::Missing,
+    });
     let mut reader: Box<dyn std::io::BufRead> = if input.as_os_str() == "-" {
         Box::new(std::io::stdin().lock())
     } else {
