@@ -229,6 +229,18 @@ fn check_config_refuses_values_that_break_the_daemon() {
         let e = config_error(&|t| set(t, section, line));
         assert!(e.contains(field), "{line}: {e:?}");
     }
+    for kind in ["none", "hyundai_whl_spd"] {
+        let e = config_error(&|t| {
+            let (head, out) = t.split_at(t.find("[output]").unwrap());
+            let out = out.replacen(
+                "checksum_kind = \"crc8_sae_j1850\"",
+                &format!("checksum_kind = \"{kind}\""),
+                1,
+            );
+            format!("{head}{out}")
+        });
+        assert!(e.contains("output.checksum_kind"), "{kind}: {e:?}");
+    }
     for (from, to, field) in [
         ("path = \"", "path = \"\" #", "state.path"),
         (
@@ -274,4 +286,94 @@ fn dbc_files_in_windows_1252_or_with_a_bom_load() {
         assert!(db.message("WHL_SPD11").is_ok(), "{name}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Issue reproducers: DBC files that loaded and then decoded the wrong bits, or
+/// overflowed in debug builds. Each is refused with the message and what is allowed.
+#[test]
+fn dbc_defects_in_the_messages_leveld_reads_are_refused_with_the_line() {
+    use leveld::can::dbc::Database;
+    let dbc = std::fs::read_to_string(root().join("dbc/leveld.dbc")).unwrap();
+    let cfg = Config::parse(
+        &root().join("config/leveld.toml"),
+        &std::fs::read_to_string(root().join("config/leveld.toml")).unwrap(),
+    )
+    .unwrap();
+    let refused = |text: String| -> String {
+        match Database::parse(Path::new("edited.dbc"), &text) {
+            Err(e) => format!("parse: {e}"),
+            Ok(db) => match Pipeline::new(&cfg, &db) {
+                Ok(_) => String::new(),
+                Err(e) => format!("{e:#}"),
+            },
+        }
+    };
+    let cases: &[(&str, &str, &str)] = &[
+        // 66438 = 0x10386: the parser keeps 16 bits and read it as WHL_SPD11's 0x386.
+        (
+            "BO_ 902 WHL_SPD11:",
+            "BO_ 66438 WHL_SPD11:",
+            "line 16: message `WHL_SPD11` has ID 66438",
+        ),
+        ("BO_ 992 IMU_ACC:", "BO_ 2100 IMU_ACC:", "at most 0x7FF"),
+        (
+            "BO_ 993 IMU_GYR:",
+            "BO_ 992 IMU_GYR:",
+            "as has `IMU_GYR` on line 33",
+        ),
+        (
+            " SG_ WHL_SPD_FL : 0|14@1+",
+            " SG_ WHL_SPD_FL : 0|65@1+",
+            "1 to 64",
+        ),
+        (
+            " SG_ WHL_SPD_FL : 0|14@1+",
+            " SG_ WHL_SPD_FL : 0|0@1+",
+            "1 to 64",
+        ),
+        (
+            " SG_ IMU_AccX : 0|16@1-",
+            " SG_ IMU_AccX : 70000|16@1-",
+            "past any frame",
+        ),
+        (
+            " SG_ IMU_AccX : 0|16@1-",
+            " SG_ IMU_AccX : 60|16@1-",
+            "does not fit",
+        ),
+        (
+            "(0.001,0) [-32.768|32.767] \"m/s^2\" LEVELD\n SG_ IMU_AccY",
+            "(0,0) [-32.768|32.767] \"m/s^2\" LEVELD\n SG_ IMU_AccY",
+            "factor 0",
+        ),
+        (
+            " SG_ WHL_SPD_FR : 16|14@1+",
+            " SG_ WHL_SPD_FR : 8|14@1+",
+            "share bits",
+        ),
+        (
+            " SG_ IMU_RateZ : 32|16@1-",
+            " SG_ IMU_RateZ : 44|16@1-",
+            "share bits",
+        ),
+        (
+            " SG_ IMU_AccZ : 32|16@1-",
+            " SG_ IMU_Mux M : 52|4@1+ (1,0) [0|15] \"\" LEVELD\n SG_ IMU_AccZ m1 : 32|16@1-",
+            "multiplexed",
+        ),
+        (" SG_ CRC : 56|8@1+", " SG_ CRC : 52|8@1+", "byte 7"),
+        ("BO_ 1000 LEVELING: 8", "BO_ 1000 LEVELING: 6", "8-byte"),
+    ];
+    assert_eq!(refused(dbc.clone()), "", "the reference DBC loads");
+    for (from, to, expect) in cases {
+        assert!(dbc.contains(from), "{from}");
+        let e = refused(dbc.replacen(from, to, 1));
+        assert!(e.contains(expect), "{to}: {e:?}");
+    }
+    // One signal in two roles (config side).
+    let mut twice = cfg.clone();
+    twice.wheels.signals[1] = twice.wheels.signals[0].clone();
+    let db = Database::parse(Path::new("leveld.dbc"), &dbc).unwrap();
+    let e = format!("{:#}", Pipeline::new(&twice, &db).unwrap_err());
+    assert!(e.contains("two roles"), "{e}");
 }
