@@ -238,6 +238,7 @@ impl Bus for MemoryBus {
     async fn recv(&mut self) -> Received {
         let due = self.frames.get(self.next).map_or(self.end_s, |f| f.t_s);
         if let (Some(tick), Some(now)) = (self.tick_s, self.clock_s)
+            && now + tick > now
             && now + tick < due
         {
             self.clock_s = Some(now + tick);
