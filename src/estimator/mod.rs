@@ -270,12 +270,13 @@ impl Estimator {
         if self.standstill.is_some() {
             // Rocking, a door shock or a gap in the data only pause the standstill; it
             // ends when the wheels turn or the IMU sees the car pick up speed.
-            let v = if wheels_zero {
+            let (v, gain) = if wheels_zero {
                 self.track_motion()
             } else {
-                0.0
+                (0.0, 0.0)
             };
-            if !wheels_zero || v >= self.cfg.drive_off_speed_mps {
+            let thr = self.cfg.drive_off_speed_mps;
+            if !wheels_zero || (v >= thr && gain >= thr) {
                 self.imu_moved |= wheels_zero;
                 self.dead_zone_motion = self
                     .standstill
