@@ -40,6 +40,8 @@ command -v fish >/dev/null && check "fish -n accepts the fish completion" fish -
 
 # --- start: active only after READY=1 -------------------------------------------------
 check "systemctl start leveld succeeds" systemctl start leveld
+# On failure, what the daemon said is the first thing to read.
+systemctl is-active -q leveld || journalctl -u leveld -o cat --no-pager | tail -n 30 | sed 's/^/# /'
 check "the unit is active" test "$(systemctl is-active leveld)" = active
 # leveld logs "CAN open" just before READY=1; systemd logs "Started" when it arrives.
 order=$(journalctl -b -o cat --no-pager | grep -n -e 'CAN open' -e 'Started leveld' | head -n 2 | cut -d: -f2-)
