@@ -104,6 +104,9 @@ lane() {
       echo "lane $l cycle $i: the calibration file changed" >&2
       unreadable=$((unreadable + 1))
     fi
+    if [ $((i % 25)) -eq 0 ]; then
+      echo "lane $l: $i cycles, $unreadable unreadable, $backwards not sent, $saves saves seen"
+    fi
   done
   echo "$l $n $unreadable $backwards $best $saves" > "$dir/result"
 }
