@@ -119,10 +119,6 @@ impl Pipeline {
         self.inputs.codec(slot)
     }
 
-    pub fn set_reference_pitch_deg(&mut self, v: f64) {
-        self.reference_pitch_deg = v;
-    }
-
     /// Run with `cal`: a calibrated reference pitch; a missing one leaves the
     /// config's with the `uncalibrated` flag set; an unreadable one is FAULT.
     pub fn set_calibration(&mut self, cal: &Calibration) {

@@ -107,7 +107,7 @@ pub struct LiveBus {
     retry_at: Instant,
     /// The output socket failed with more than a full queue: reconnect.
     output_failed: bool,
-    /// Counted frames may only be dropped by one who can open the output.
+    /// Receive only: LEVELING frames are neither sent nor counted (calibration).
     read_only: bool,
     stats: SharedStats,
 }
