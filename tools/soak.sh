@@ -17,6 +17,9 @@ lanes=${4:-4}
 root=$(cd "$(dirname "$0")/.." && pwd)
 work=${TMPDIR:-/tmp}/leveld-soak
 rm -rf "$work" && mkdir -p "$work"
+# Run a private copy: a rebuild of the binary on the host while the soak runs would
+# change the file under running daemons (they crash on the next page they load).
+cp "$bin" "$work/leveld" && bin="$work/leveld"
 
 # The drive's accepted windows, and a slice of the log from 12 s before each (a stop
 # long enough to settle, then the drive-off) to 1.5 s after.
