@@ -48,7 +48,19 @@ fn gentle() -> RealisticSpec {
 fn gentle_drive_offs_in_the_wheel_dead_zone_give_unbiased_windows() {
     let (mut n, mut ok, mut errs) = (0, 0, Vec::new());
     for seed in [11, 12] {
-        let c = checks(&spec(seed, 10, gentle()), 0);
+        let s = spec(seed, 10, gentle());
+        let c = checks(&s, 0);
+        // Every stop but the first (the drive starts at rest) is left gently, except
+        // the one that ends the drive: the car never pulls away from it.
+        let case = &s.cases()[0];
+        let drive = simulate(&case.scenario);
+        let stops = &case.plan.as_ref().unwrap().stops;
+        let left = stops[1..]
+            .iter()
+            .filter(|st| drive.truth.iter().any(|x| x.t_s > st.1 && x.v_mps > 1.0))
+            .count();
+        assert_eq!(left, stops.len() - 2, "seed {seed}: stops left");
+        assert_eq!(c.gentle_drive_offs, left, "seed {seed}: drive-offs counted");
         n += c.gentle_drive_offs;
         ok += c.gentle_accepted;
         errs.extend(c.window_errors);

@@ -11,6 +11,8 @@ use serde::Serialize;
 pub const GENTLE_MPS2: f64 = 0.6;
 /// A window belongs to a drive-off when it completes this soon after it, s.
 const DRIVE_OFF_WINDOW_S: f64 = 15.0;
+/// A drive-off counts when the car covers a window's distance after it, m.
+const DRIVE_OFF_MIN_M: f64 = 2.0;
 /// A load change counts as applied when the estimate's step over its stop (from the
 /// stop's start to just before drive-off) is within this of the true step, deg.
 pub const LOAD_APPLIED_TOL_DEG: f64 = 0.1;
@@ -95,7 +97,13 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
     }
     for (k, &(t_stop, t_go, kind, accel)) in plan.stops.iter().enumerate() {
         match kind {
-            StopKind::Full if k > 0 && accel <= GENTLE_MPS2 => {
+            // The plan's last stop may end the drive: its drive-off never comes.
+            StopKind::Full
+                if k > 0
+                    && accel <= GENTLE_MPS2
+                    && drive.truth_at(t_go + DRIVE_OFF_WINDOW_S).s_m - drive.truth_at(t_go).s_m
+                        >= DRIVE_OFF_MIN_M =>
+            {
                 out.gentle_drive_offs += 1;
                 let accepted = events.iter().any(|e| {
                     matches!(e, Event::WindowAccepted { window, .. }
