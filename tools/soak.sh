@@ -10,6 +10,9 @@
 # through the cycles faster. Each cycle plays the 8 s around one accepted window of
 # the drive (so that saves happen) and kills the daemon after 0.05-9 s.
 set -euo pipefail
+# The whole script is one block, read before any of it runs: editing this file while
+# a soak runs cannot change what the running soak does.
+{
 bin=$(realpath "$1")
 drive=$(realpath "$2")
 cycles=${3:-1000}
@@ -129,3 +132,5 @@ for l in $(seq 1 "$lanes"); do
 done
 echo "soak: $total kill -9 cycles in $secs s: $bad unreadable, $back saved counts the daemon had not sent"
 [ "$bad" -eq 0 ] && [ "$back" -eq 0 ]
+exit
+}
