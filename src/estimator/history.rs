@@ -261,21 +261,11 @@ impl Estimator {
     /// bias-corrected gyro (eq. 10-11), in either direction.
     pub(super) fn carry(
         &self,
-        q: UnitQuaternion<f64>,
-        from: usize,
-        to: usize,
-    ) -> UnitQuaternion<f64> {
-        self.carry_with(q, from, to, self.bias_rps.unwrap_or_else(Vector3::zeros))
-    }
-
-    /// `carry` with the given gyro bias, rad/s.
-    pub(super) fn carry_with(
-        &self,
         mut q: UnitQuaternion<f64>,
         from: usize,
         to: usize,
-        bias: Vector3<f64>,
     ) -> UnitQuaternion<f64> {
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let step = |q: UnitQuaternion<f64>, i: usize, sign: f64| {
             let (a, b) = (self.hist.get(i), self.hist.get(i + 1));
             let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;

@@ -6,7 +6,7 @@ use super::gravity::pitch_from;
 use super::motion::MotionTracker;
 use super::window::{RejectReason, Step};
 use super::{Condition, Estimator, Event, ImuSample};
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 
 /// The speed check of a new standstill looks back at most this far to the last wheel
 /// reading with a speed, s.
@@ -34,19 +34,8 @@ pub(super) struct Standstill {
     /// Time of the newest sample in the block, s.
     pub(super) block_last_s: f64,
     /// A block that differed from the segment, waiting for a second one to confirm:
-    /// (sum, samples, start time s, its swing).
-    pub(super) pending: Option<(Vector3<f64>, u64, f64, Swing)>,
-    /// Gyro-carried rotation of the newest settled sample from the first one, and that
-    /// sample's time.
-    pub(super) rel: UnitQuaternion<f64>,
-    pub(super) rel_t_s: Option<f64>,
-    /// The gyro bias the rotations are carried with (the estimate when the first sample
-    /// settled); the bias learnt since is applied when they are used, rad/s.
-    pub(super) rel_bias: Vector3<f64>,
-    /// Time of the first settled sample, s.
-    pub(super) rel_t0_s: f64,
-    pub(super) block_swing: Swing,
-    pub(super) seg_swing: Swing,
+    /// (sum, samples, start time s).
+    pub(super) pending: Option<(Vector3<f64>, u64, f64)>,
     /// The car drove since the previous standstill.
     pub(super) moved: bool,
     /// The IMU saw the car move in the wheel sensors' dead zone since the previous
@@ -62,66 +51,7 @@ pub(super) struct Standstill {
     pub(super) settled_done: bool,
 }
 
-/// Rotations (rotation vectors, rad) of a run of settled samples from the first
-/// settled sample of the standstill: their sum, and those of the run's first and last;
-/// and the same of their times since that sample, s.
-#[derive(Debug, Clone, Copy, Default)]
-pub(super) struct Swing {
-    pub(super) sum: Vector3<f64>,
-    pub(super) first: Vector3<f64>,
-    pub(super) last: Vector3<f64>,
-    pub(super) t_sum: f64,
-    pub(super) t_first: f64,
-    pub(super) t_last: f64,
-}
-
-impl Swing {
-    fn join(self, later: Swing) -> Swing {
-        Swing {
-            sum: self.sum + later.sum,
-            first: self.first,
-            last: later.last,
-            t_sum: self.t_sum + later.t_sum,
-            t_first: self.t_first,
-            t_last: later.t_last,
-        }
-    }
-}
-
-/// Over a longer reference the residual swing averages out, while the gyro's noise and
-/// bias error carried over it would not: the mean attitude is taken as it is, s.
-const MAX_SWING_SPAN_S: f64 = 6.0;
-
 impl Standstill {
-    /// Attitude at the first (`last == false`) or last settled sample of the segment,
-    /// whose samples average to `q_mean`. A body still swinging on its suspension when
-    /// the reference begins (the dive of the stop decaying) is tilted there by its
-    /// swing, not by the mean: the gyro gives each sample's rotation, and their mean
-    /// is taken back out. A deceleration walk started in the mean attitude instead is
-    /// off by the residual dive, 0.03-0.07 deg on a body that pitches 0.3 deg per m/s^2.
-    pub(super) fn attitude_at_end(
-        &self,
-        q_mean: UnitQuaternion<f64>,
-        last: bool,
-        bias_rps: Option<Vector3<f64>>,
-    ) -> UnitQuaternion<f64> {
-        if self.seg_n == 0 || self.settled_s() > MAX_SWING_SPAN_S {
-            return q_mean;
-        }
-        let w = &self.seg_swing;
-        let (at, t_at) = if last {
-            (w.last, w.t_last)
-        } else {
-            (w.first, w.t_first)
-        };
-        let n = self.seg_n as f64;
-        // Rotations carried with `rel_bias`; the bias learnt since turns them by its
-        // change times their time.
-        let db = bias_rps.map_or(Vector3::zeros(), |b| b - self.rel_bias);
-        let d = (at - w.sum / n) - db * (t_at - w.t_sum / n);
-        q_mean * UnitQuaternion::from_scaled_axis(d)
-    }
-
     pub(super) fn mean(&self) -> Vector3<f64> {
         self.seg_sum / self.seg_n.max(1) as f64
     }
@@ -206,12 +136,6 @@ impl Estimator {
             block_t0_s: t_now,
             block_last_s: t_now,
             pending: None,
-            rel: UnitQuaternion::identity(),
-            rel_t_s: None,
-            rel_bias: Vector3::zeros(),
-            rel_t0_s: 0.0,
-            block_swing: Swing::default(),
-            seg_swing: Swing::default(),
             moved,
             crept,
             f_begin: f_rest,
@@ -257,42 +181,12 @@ impl Estimator {
         // would read without the rocking tail.
         let f = s.acc() - self.lever_acc_at(self.index_at(s.t_s));
         self.update_gravity(s.t_s, &f);
-        let Some(st) = self.standstill else {
-            return;
-        };
-        // Carry the settled samples' rotation along the history (samples that were not
-        // still in between included).
-        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
-        let (rel, rel_bias) = match st.rel_t_s {
-            Some(t) => (
-                self.carry_with(st.rel, self.index_at(t), self.index_at(s.t_s), st.rel_bias),
-                st.rel_bias,
-            ),
-            None => (UnitQuaternion::identity(), bias),
-        };
-        let rv = rel.scaled_axis();
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
-        st.rel = rel;
-        st.rel_bias = rel_bias;
-        if st.rel_t_s.is_none() {
-            st.rel_t0_s = s.t_s;
-        }
-        st.rel_t_s = Some(s.t_s);
-        let dt = s.t_s - st.rel_t0_s;
         if st.block_n == 0 {
             st.block_t0_s = s.t_s;
-            st.block_swing = Swing {
-                first: rv,
-                t_first: dt,
-                ..Swing::default()
-            };
         }
-        st.block_swing.sum += rv;
-        st.block_swing.last = rv;
-        st.block_swing.t_sum += dt;
-        st.block_swing.t_last = dt;
         st.block_sum += f;
         st.block_n += 1;
         st.block_last_s = s.t_s;
@@ -326,7 +220,6 @@ impl Estimator {
             return;
         }
         let (block, block_n, block_t0) = (st.block_sum, st.block_n, st.block_t0_s);
-        let block_swing = st.block_swing;
         let block_last = st.block_last_s;
         st.block_sum = Vector3::zeros();
         st.block_n = 0;
@@ -336,7 +229,6 @@ impl Estimator {
             st.seg_n = block_n;
             st.seg_first_s = block_t0;
             st.seg_last_s = block_last;
-            st.seg_swing = block_swing;
             return;
         }
         let block_mean = block / block_n as f64;
@@ -347,12 +239,11 @@ impl Estimator {
             st.seg_sum += block;
             st.seg_n += block_n;
             st.seg_last_s = block_last;
-            st.seg_swing = st.seg_swing.join(block_swing);
             st.pending = None;
             return;
         }
         match st.pending.take() {
-            Some((psum, pn, pt0, pswing))
+            Some((psum, pn, pt0))
                 if pitch_from(&(psum / pn as f64))
                     .is_some_and(|pp| (pp - bp).abs() <= thr / 2.0) =>
             {
@@ -368,12 +259,11 @@ impl Estimator {
                 st.seg_n = pn + block_n;
                 st.seg_first_s = pt0;
                 st.seg_last_s = block_last;
-                st.seg_swing = pswing.join(block_swing);
                 let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
                 let delta = new_pitch - sp;
                 self.apply_load_change(delta, new_pitch, t_s, emit);
             }
-            _ => st.pending = Some((block, block_n, block_t0, block_swing)),
+            _ => st.pending = Some((block, block_n, block_t0)),
         }
     }
 
@@ -436,7 +326,6 @@ impl Estimator {
         }
         let g = self.gravity_mps2(&st.mean());
         let (settled, floor) = (self.index_at(st.seg_first_s), self.index_at(st.t_rest_s));
-        let q_ref = st.attitude_at_end(q_ref, false, self.bias_rps);
         let (rest, _) = self.rocking_rest_edge(q_ref, settled, floor, g);
         // The rocking after this stop refines the lever arm before the walk uses it.
         self.learn_lever(q_ref, rest, settled, g);
@@ -482,10 +371,9 @@ impl Estimator {
         let first = self.drive_off_start(&g_mean, floor);
         let q_ref = if settled {
             attitude_from_gravity(&st.mean()).map(|q| {
-                let last = self.index_at(st.seg_last_s).min(n - 1);
                 (
                     q,
-                    self.carry(st.attitude_at_end(q, true, self.bias_rps), last, first),
+                    self.carry(q, self.index_at(st.seg_last_s).min(n - 1), first),
                 )
             })
         } else {
