@@ -14,8 +14,12 @@ const DRIVE_OFF_WINDOW_S: f64 = 15.0;
 /// A drive-off counts when the car covers a window's distance after it, m.
 const DRIVE_OFF_MIN_M: f64 = 2.0;
 /// A load change counts as applied when the estimate's step over its stop (from the
-/// stop's start to just before drive-off) is within this of the true step, deg.
+/// stop's start to just before drive-off) is within this of the true step, deg, and
+/// still is `LOAD_KEPT_S` after drive-off (a step shown at rest and then dropped does
+/// not count).
 pub const LOAD_APPLIED_TOL_DEG: f64 = 0.1;
+/// See `LOAD_APPLIED_TOL_DEG`, s.
+pub const LOAD_KEPT_S: f64 = 1.0;
 /// Load changes at least this large are checked, deg.
 pub const LOAD_CHECKED_DEG: f64 = 0.5;
 
@@ -60,6 +64,8 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
     // Estimate just before each stop's drive-off, and the first converged time.
     let mut before_go: Vec<Option<f64>> = vec![None; plan.stops.len()];
     let mut at_stop: Vec<Option<f64>> = vec![None; plan.stops.len()];
+    let mut after_go: Vec<Option<f64>> = vec![None; plan.stops.len()];
+    let mut next_kept = 0;
     let mut next_start = 0;
     let mut valid_at: Option<f64> = None;
     let mut next_stop = 0;
@@ -81,6 +87,10 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
         while next_stop < plan.stops.len() && t >= plan.stops[next_stop].1 {
             before_go[next_stop] = est.estimate().map(|e| e.road_to_body_deg);
             next_stop += 1;
+        }
+        while next_kept < plan.stops.len() && t >= plan.stops[next_kept].1 + LOAD_KEPT_S {
+            after_go[next_kept] = est.estimate().map(|e| e.road_to_body_deg);
+            next_kept += 1;
         }
         if valid_at.is_none() && est.estimate().is_some_and(|e| valid(&e)) {
             valid_at = Some(t);
@@ -134,12 +144,13 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
             let after = drive.truth_at(t_go).load_pitch_deg;
             if (after - before).abs() >= LOAD_CHECKED_DEG {
                 out.load_changes += 1;
-                let applied = match (at_stop[k], before_go[k]) {
+                let within = |e1: Option<f64>| match (at_stop[k], e1) {
                     (Some(e0), Some(e1)) => {
                         ((e1 - e0) - (after - before)).abs() <= LOAD_APPLIED_TOL_DEG
                     }
                     _ => false,
                 };
+                let applied = within(before_go[k]) && within(after_go[k]);
                 out.load_applied += usize::from(applied);
             }
         }
