@@ -45,7 +45,14 @@ impl Estimator {
     /// ramps the acceleration in, and the body starts to squat with it: where the force
     /// first departs, the IMU 2 m ahead of the pitch centre already moves with the
     /// pitch rate, which a walk started there would miss.
-    pub(super) fn drive_off_start(&self, g_mean: &Vector3<f64>, floor: usize) -> usize {
+    /// With `load_turning`, a load still ramping in turns the body at rest: the pitch
+    /// rate then says nothing about the drive-off, and only the force is compared.
+    pub(super) fn drive_off_start(
+        &self,
+        g_mean: &Vector3<f64>,
+        floor: usize,
+        load_turning: bool,
+    ) -> usize {
         let n = self.hist.len();
         let bias_y = self.bias_rps.map_or(0.0, |b| b.y);
         let gate = self.cfg.bias_gate_dps.to_radians();
@@ -66,7 +73,7 @@ impl Estimator {
             if dev <= 2.0 * tol {
                 i_twice.get_or_insert(i);
             }
-            if dev <= tol && (wy / k - bias_y).abs() <= gate {
+            if dev <= tol && (load_turning || (wy / k - bias_y).abs() <= gate) {
                 i_rest = Some(i);
                 break;
             }

@@ -87,6 +87,9 @@ pub struct Estimator {
     baseline_pitch_rad: Option<f64>,
     last_slope_rad: Option<f64>,
     estimate: Option<Estimate>,
+    /// Pitch the body turned at rest since the settled reference, shown in the estimate
+    /// until the settled blocks or the drive-off decide on it, rad.
+    live_offset_rad: f64,
 }
 
 /// While the IMU-seen speed is above this share of `drive_off_speed_mps`, no sample
@@ -136,13 +139,16 @@ impl Estimator {
             baseline_pitch_rad: None,
             last_slope_rad: None,
             estimate: None,
+            live_offset_rad: 0.0,
             cfg,
         })
     }
 
     /// Current estimate, `None` before the first accepted window.
     pub fn estimate(&self) -> Option<Estimate> {
-        self.estimate
+        let mut e = self.estimate?;
+        e.road_to_body_deg += self.live_offset_rad.to_degrees();
+        Some(e)
     }
 
     /// Road slope of the last accepted window, deg.
@@ -283,8 +289,11 @@ impl Estimator {
                     .and_then(|st| st.motion)
                     .filter(|_| wheels_zero);
                 self.end_standstill(s.t_s, emit);
-            } else if quiet && v < MOTION_PAUSE_SHARE * self.cfg.drive_off_speed_mps {
-                self.update_standstill(&s, emit);
+            } else {
+                if quiet && v < MOTION_PAUSE_SHARE * self.cfg.drive_off_speed_mps {
+                    self.update_standstill(&s, emit);
+                }
+                self.track_live_pitch(s.t_s);
             }
         } else if let (true, Some(q0), Some(w0)) = (
             self.track_dead_zone(wheels_zero),

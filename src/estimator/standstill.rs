@@ -6,7 +6,7 @@ use super::gravity::pitch_from;
 use super::motion::MotionTracker;
 use super::window::{RejectReason, Step};
 use super::{Condition, Estimator, Event, ImuSample};
-use nalgebra::Vector3;
+use nalgebra::{UnitQuaternion, Vector3};
 
 /// The speed check of a new standstill looks back at most this far to the last wheel
 /// reading with a speed, s.
@@ -15,6 +15,25 @@ const REST_CHECK_SPAN_S: f64 = 6.0;
 /// from that reading by this much, m/s (wheel quantisation and update interval, a
 /// body that still rocks).
 const REST_SPEED_TOL_MPS: f64 = 0.15;
+
+/// Time constant of the smoothing of the live standstill pitch, s: it averages out a
+/// door shock's 5-8 Hz swing and keeps the lag of a ramping load short.
+const LIVE_PITCH_TAU_S: f64 = 0.15;
+/// The live pitch must stay beyond the load-change threshold this long before the
+/// estimate shows it, s (a door shock decays in about 0.3 s).
+const LIVE_PITCH_PERSIST_S: f64 = 0.3;
+
+/// A load change's pitch step in the specific force must match the turn the gyro saw
+/// within this, rad, plus `TURN_MATCH_SHARE` of the step.
+const TURN_MATCH_TOL_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
+const TURN_MATCH_SHARE: f64 = 0.3;
+
+/// A turn of the body at rest that began at least this long before the drive-off's
+/// start is a load coming in, not the squat of the drive-off, s.
+const LOAD_TURN_LEAD_S: f64 = 0.5;
+
+/// A pause this long in the quiet samples ends a load block, s.
+const BLOCK_GAP_S: f64 = 0.1;
 
 /// Fewest settled samples a reference is taken from.
 pub(super) const MIN_SETTLED_SAMPLES: u64 = 5;
@@ -49,6 +68,28 @@ pub(super) struct Standstill {
     pub(super) motion_unknown: bool,
     /// The settled reference exists and the baseline and deceleration window were handled.
     pub(super) settled_done: bool,
+    /// Gyro sum of the current block: it teaches the bias only if the block joins the
+    /// segment (the body did not turn), rad/s.
+    pub(super) block_gyro_sum: Vector3<f64>,
+    /// The body's attitude now, carried by the gyro from the segment's reference.
+    pub(super) live: LivePitch,
+}
+
+/// The body's pitch while stopped, followed by the gyro from the settled reference with
+/// no more delay than a short smoothing: a load that ramps in shows while it happens,
+/// before the settled blocks can confirm it.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct LivePitch {
+    /// Attitude at the newest sample, and the segment (samples, first time) it was carried from.
+    pub(super) q: Option<(UnitQuaternion<f64>, u64, f64)>,
+    /// Pitch of the segment's reference, rad.
+    pub(super) seg_pitch_rad: f64,
+    /// Smoothed pitch now, rad.
+    pub(super) smooth_rad: Option<f64>,
+    /// Since when the smoothed pitch has stood beyond the load-change threshold, s.
+    pub(super) beyond_since_s: Option<f64>,
+    /// The offset is shown in the estimate.
+    pub(super) active: bool,
 }
 
 impl Standstill {
@@ -142,6 +183,8 @@ impl Estimator {
             motion,
             motion_unknown,
             settled_done: false,
+            block_gyro_sum: Vector3::zeros(),
+            live: LivePitch::default(),
         });
         let pitch = pitch_from(&f_rest).unwrap_or(0.0);
         emit(Event::StandstillStarted {
@@ -176,17 +219,34 @@ impl Estimator {
     }
 
     pub(super) fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
-        self.update_bias(s);
         // The gravity reference is the specific force of the pitch centre: what the IMU
         // would read without the rocking tail.
         let f = s.acc() - self.lever_acc_at(self.index_at(s.t_s));
         self.update_gravity(s.t_s, &f);
+        let Some(st) = self.standstill.as_mut() else {
+            self.update_bias(s);
+            return;
+        };
+        // A block holds one stretch of quiet samples: a gap (the body moved, a load
+        // ramped in) closes it, or drops it when it is too short to stand for a pitch
+        // (a few samples between two swings of the body).
+        if st.block_n > 0 && s.t_s - st.block_last_s > BLOCK_GAP_S {
+            if st.block_n >= MIN_SETTLED_SAMPLES {
+                let t_last = st.block_last_s;
+                self.close_block(t_last, emit);
+            } else {
+                st.block_sum = Vector3::zeros();
+                st.block_gyro_sum = Vector3::zeros();
+                st.block_n = 0;
+            }
+        }
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
         if st.block_n == 0 {
             st.block_t0_s = s.t_s;
         }
+        st.block_gyro_sum += s.gyro_rps();
         st.block_sum += f;
         st.block_n += 1;
         st.block_last_s = s.t_s;
@@ -221,7 +281,9 @@ impl Estimator {
         }
         let (block, block_n, block_t0) = (st.block_sum, st.block_n, st.block_t0_s);
         let block_last = st.block_last_s;
+        let gyro_mean = st.block_gyro_sum / block_n as f64;
         st.block_sum = Vector3::zeros();
+        st.block_gyro_sum = Vector3::zeros();
         st.block_n = 0;
         st.block_t0_s = t_s;
         if st.seg_n == 0 {
@@ -229,6 +291,7 @@ impl Estimator {
             st.seg_n = block_n;
             st.seg_first_s = block_t0;
             st.seg_last_s = block_last;
+            self.update_bias_block(&gyro_mean, block_n);
             return;
         }
         let block_mean = block / block_n as f64;
@@ -240,6 +303,7 @@ impl Estimator {
             st.seg_n += block_n;
             st.seg_last_s = block_last;
             st.pending = None;
+            self.update_bias_block(&gyro_mean, block_n);
             return;
         }
         match st.pending.take() {
@@ -247,7 +311,33 @@ impl Estimator {
                 if pitch_from(&(psum / pn as f64))
                     .is_some_and(|pp| (pp - bp).abs() <= thr / 2.0) =>
             {
-                // Two blocks agree on a new pitch: the load changed.
+                // Two blocks agree on a new pitch. A load change turns the body, and the
+                // gyro sees the same turn; a reference taken from a few samples while the
+                // body still swung (its lever-arm motion left in the force) does not.
+                let new_mean = (psum + block) / (pn + block_n) as f64;
+                let sf_delta = pitch_from(&new_mean).unwrap_or(bp) - sp;
+                let (seg_mid, new_mid) = (
+                    0.5 * (st.seg_first_s + st.seg_last_s),
+                    0.5 * (pt0 + block_last),
+                );
+                let seg_mean = st.mean();
+                let gyro_delta = attitude_from_gravity(&seg_mean).map(|q| {
+                    let q1 = self.carry(q, self.index_at(seg_mid), self.index_at(new_mid));
+                    pitch_of(&q1) - pitch_of(&q)
+                });
+                let Some(st) = self.standstill.as_mut() else {
+                    return;
+                };
+                if gyro_delta.is_some_and(|g| {
+                    (sf_delta - g).abs() > TURN_MATCH_TOL_RAD + TURN_MATCH_SHARE * sf_delta.abs()
+                }) {
+                    // The newer stretch is the better reference; the load stays.
+                    st.seg_sum = psum + block;
+                    st.seg_n = pn + block_n;
+                    st.seg_first_s = pt0;
+                    st.seg_last_s = block_last;
+                    return;
+                }
                 if !st.settled_done {
                     // The stop settles on what came before the change.
                     self.on_settled(t_s, emit);
@@ -350,6 +440,55 @@ impl Estimator {
         self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
     }
 
+    /// Follow the body's pitch at rest with the gyro from the settled reference (see
+    /// `LivePitch`). The estimate shows the difference once it has stood beyond the
+    /// load-change threshold for `LIVE_PITCH_PERSIST_S`; the settled blocks or the
+    /// drive-off then decide whether it was a load change.
+    pub(super) fn track_live_pitch(&mut self, t_s: f64) {
+        let Some(mut st) = self.standstill else {
+            return;
+        };
+        let n = self.hist.len();
+        if st.seg_n < MIN_SETTLED_SAMPLES || n < 2 {
+            self.live_offset_rad = 0.0;
+            return;
+        }
+        let q = match st.live.q {
+            Some((q, seg_n, seg_first)) if seg_n == st.seg_n && seg_first == st.seg_first_s => {
+                self.carry(q, n - 2, n - 1)
+            }
+            _ => {
+                let Some(q_seg) = attitude_from_gravity(&st.mean()) else {
+                    return;
+                };
+                st.live.seg_pitch_rad = pitch_of(&q_seg);
+                let from = self.index_at(st.seg_last_s).min(n - 1);
+                self.carry(q_seg, from, n - 1)
+            }
+        };
+        st.live.q = Some((q, st.seg_n, st.seg_first_s));
+        let pitch = pitch_of(&q);
+        let dt = (t_s - self.hist.get(n - 2).t_s).max(0.0);
+        let smooth = match st.live.smooth_rad {
+            Some(p) => p + (pitch - p) * dt / (LIVE_PITCH_TAU_S + dt),
+            None => pitch,
+        };
+        st.live.smooth_rad = Some(smooth);
+        let offset = smooth - st.live.seg_pitch_rad;
+        let thr = self.cfg.load_change_deg.to_radians();
+        // Hysteresis: once shown, the offset stays until it falls to half the threshold.
+        let beyond = offset.abs() > if st.live.active { 0.5 * thr } else { thr };
+        if beyond {
+            let since = *st.live.beyond_since_s.get_or_insert(t_s);
+            st.live.active |= t_s - since >= LIVE_PITCH_PERSIST_S;
+        } else {
+            st.live.beyond_since_s = None;
+            st.live.active = false;
+        }
+        self.live_offset_rad = if st.live.active { offset } else { 0.0 };
+        self.standstill = Some(st);
+    }
+
     pub(super) fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
         self.flush_block(t_now, emit);
         let Some(st) = self.standstill else { return };
@@ -357,6 +496,8 @@ impl Estimator {
             // A short stop: use what settled.
             self.on_settled(t_now, emit);
         }
+        let live_active = st.live.active;
+        self.live_offset_rad = 0.0;
         self.standstill = None;
         emit(Event::StandstillEnded {
             t_s: t_now,
@@ -368,7 +509,22 @@ impl Estimator {
         let floor = self.index_at(st.t_rest_s);
         let settled = st.seg_n >= MIN_SETTLED_SAMPLES;
         let g_mean = if settled { st.mean() } else { st.f_begin };
-        let first = self.drive_off_start(&g_mean, floor);
+        // After the body turned at rest, it rests on the gravity of its new attitude.
+        let g_mean = match (st.live.q, attitude_from_gravity(&g_mean)) {
+            (Some((q_live, ..)), Some(q_seg)) if settled && live_active => {
+                q_live.inverse() * (q_seg * g_mean)
+            }
+            _ => g_mean,
+        };
+        let mut first = self.drive_off_start(&g_mean, floor, false);
+        // A load still ramping in when the car pulls away: no sample after the turn
+        // began is at rest by the pitch rate. Compare the force alone then, unless the
+        // turn began with the drive-off (the body squats as it pulls away).
+        if let Some(t_turn) = st.live.beyond_since_s.filter(|_| settled && live_active)
+            && self.hist.get(first).t_s < t_turn - LOAD_TURN_LEAD_S
+        {
+            first = self.drive_off_start(&g_mean, floor, true);
+        }
         let q_ref = if settled {
             attitude_from_gravity(&st.mean()).map(|q| {
                 (
@@ -397,6 +553,17 @@ impl Estimator {
             let r = Err(RejectReason::NotStill);
             self.report_window(r, Condition::DecelBeforeStop, 0.0, t_now, emit);
         }
+        // The body turned at rest since the settled reference and the live pitch showed
+        // it: a load that came in too late for the settled blocks to confirm. The gyro
+        // gives the step up to the drive-off.
+        let mut imu_pitch_rad = pitch_of(&q_ref);
+        if settled && live_active {
+            let delta = pitch_of(&q0) - imu_pitch_rad;
+            if delta.abs() > self.cfg.load_change_deg.to_radians() {
+                imu_pitch_rad += delta;
+                self.apply_load_change(delta, imu_pitch_rad, t_now, emit);
+            }
+        }
         let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
         let settled_at_start = settled && self.hist.get(first).t_s - st.seg_last_s < 1.0;
@@ -407,7 +574,7 @@ impl Estimator {
         };
         self.fwd.start(setup, v0);
         self.fwd_ctx = Some(ForwardCtx {
-            imu_pitch_rad: pitch_of(&q_ref),
+            imu_pitch_rad,
             speed_checked: false,
             speed_mismatch: None,
         });

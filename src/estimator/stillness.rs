@@ -50,6 +50,16 @@ impl Estimator {
         acc_ok && gyro_ok && mean_ok
     }
 
+    /// Eq. 7 over a block of `n` samples whose mean rate was `mean_rps`: the same
+    /// low-pass, stepped `n` times at once.
+    pub(super) fn update_bias_block(&mut self, mean_rps: &Vector3<f64>, n: u64) {
+        let k = 1.0 - (1.0 - self.cfg.gyro_bias_alpha).powi(n.min(i32::MAX as u64) as i32);
+        self.bias_rps = Some(match self.bias_rps {
+            Some(b) => b + (mean_rps - b) * k,
+            None => *mean_rps,
+        });
+    }
+
     pub(super) fn update_bias(&mut self, s: &ImuSample) {
         let w = s.gyro_rps();
         let a = self.cfg.gyro_bias_alpha;
