@@ -67,6 +67,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         weight_windows: false,
         ..d()
     };
+    let no_live_pitch = EstimatorConfig {
+        live_standstill_pitch: false,
+        ..d()
+    };
     let no_imu_drive_off = EstimatorConfig {
         drive_off_speed_mps: 1e3,
         ..d()
@@ -82,6 +86,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         learn_lever_arm: false,
         weight_windows: false,
         drive_off_speed_mps: 1e3,
+        live_standstill_pitch: false,
         ..d()
     };
     vec![
@@ -101,6 +106,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_learn, "no-lever-learning")),
         Box::new(Leveld::new(equal_weights, "equal-weights")),
         Box::new(Leveld::new(no_imu_drive_off, "no-imu-drive-off")),
+        Box::new(Leveld::new(no_live_pitch, "no-live-standstill-pitch")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

@@ -85,6 +85,10 @@ pub struct EstimatorConfig {
     /// Weigh each window by its predicted error (long, slow windows integrate more
     /// accelerometer noise) instead of equally.
     pub weight_windows: bool,
+    /// Follow the body's pitch at rest with the gyro, so that a load still ramping in
+    /// shows in the estimate before the settled blocks confirm it and is applied at
+    /// drive-off.
+    pub live_standstill_pitch: bool,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -125,6 +129,7 @@ impl Default for EstimatorConfig {
             shift_deg: 0.4,
             shift_windows: 3,
             weight_windows: true,
+            live_standstill_pitch: true,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,

@@ -449,7 +449,7 @@ impl Estimator {
             return;
         };
         let n = self.hist.len();
-        if st.seg_n < MIN_SETTLED_SAMPLES || n < 2 {
+        if !self.cfg.live_standstill_pitch || st.seg_n < MIN_SETTLED_SAMPLES || n < 2 {
             self.live_offset_rad = 0.0;
             return;
         }
