@@ -562,6 +562,11 @@ impl Estimator {
             if delta.abs() > self.cfg.load_change_deg.to_radians() {
                 imu_pitch_rad += delta;
                 self.apply_load_change(delta, imu_pitch_rad, t_now, emit);
+                // The load was still moving the body as the car pulled away: the body
+                // need not keep one pitch over the road through the window.
+                let r = Err(RejectReason::NotStill);
+                self.report_window(r, Condition::AccelAfterStop, imu_pitch_rad, t_now, emit);
+                return;
             }
         }
         let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
