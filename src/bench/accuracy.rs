@@ -71,6 +71,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         live_standstill_pitch: false,
         ..d()
     };
+    let no_pairs = EstimatorConfig {
+        pair_stop_windows: false,
+        ..d()
+    };
     let no_imu_drive_off = EstimatorConfig {
         drive_off_speed_mps: 1e3,
         ..d()
@@ -87,6 +91,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         weight_windows: false,
         drive_off_speed_mps: 1e3,
         live_standstill_pitch: false,
+        pair_stop_windows: false,
         ..d()
     };
     vec![
@@ -107,6 +112,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(equal_weights, "equal-weights")),
         Box::new(Leveld::new(no_imu_drive_off, "no-imu-drive-off")),
         Box::new(Leveld::new(no_live_pitch, "no-live-standstill-pitch")),
+        Box::new(Leveld::new(no_pairs, "no-stop-pairs")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

@@ -15,7 +15,17 @@ pub struct Averager {
     accepted: u64,
     #[serde(skip)]
     scratch: Vec<f64>,
+    /// Counts every change of `entries`: a [`PairHandle`] stays good while it holds.
+    #[serde(skip)]
+    changes: u64,
+    /// Bit i is set when the i-th newest entry is a pair of windows (see `merge_newest`).
+    #[serde(skip)]
+    pair_bits: u64,
 }
+
+/// The newest entry as it was when a window was pushed; see [`Averager::merge_newest`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PairHandle(u64);
 
 /// Combined estimate with its uncertainty.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -36,6 +46,8 @@ impl Averager {
             entries: Vec::with_capacity(capacity),
             accepted: 0,
             scratch: Vec::with_capacity(capacity),
+            changes: 0,
+            pair_bits: 0,
         }
     }
 
@@ -50,9 +62,30 @@ impl Averager {
 
     /// Add one window value (deg) with a weight relative to a typical window (its
     /// inverse predicted variance against that of a typical window).
-    pub fn push_window(&mut self, value_deg: f64, weight: f64) {
+    pub fn push_window(&mut self, value_deg: f64, weight: f64) -> PairHandle {
         self.push_weighted(value_deg, weight);
         self.accepted = self.accepted.saturating_add(1);
+        PairHandle(self.changes)
+    }
+
+    /// Fold a window into the newest entry, if that is still the one `handle` was
+    /// given for: the two become one entry, their weighted mean with the sum of their
+    /// weights. Windows of one stop share its standstill reference and their errors
+    /// partly cancel, so the pair is one measurement, not two independent ones.
+    /// Returns false (and changes nothing) when the entry is gone or was followed.
+    pub fn merge_newest(&mut self, handle: PairHandle, value_deg: f64, weight: f64) -> bool {
+        if handle.0 != self.changes {
+            return false;
+        }
+        let Some(e) = self.entries.last_mut() else {
+            return false;
+        };
+        let w = e.1 + weight;
+        *e = ((e.0 * e.1 + value_deg * weight) / w, w);
+        self.pair_bits |= 1;
+        self.accepted = self.accepted.saturating_add(1);
+        self.changes = self.changes.wrapping_add(1);
+        true
     }
 
     fn push_weighted(&mut self, value_deg: f64, w: f64) {
@@ -60,6 +93,8 @@ impl Averager {
             self.entries.remove(0);
         }
         self.entries.push((value_deg, w));
+        self.changes = self.changes.wrapping_add(1);
+        self.pair_bits <<= 1;
     }
 
     /// Restart from a new load: the previous estimate shifted by `delta_deg` is kept as a
@@ -67,6 +102,8 @@ impl Averager {
     pub fn restart_shifted(&mut self, delta_deg: f64, prior_weight: f64) {
         let prior = self.combined();
         self.entries.clear();
+        self.changes = self.changes.wrapping_add(1);
+        self.pair_bits = 0;
         self.accepted = 0;
         if let Some(c) = prior {
             let w = c.weight.min(prior_weight);
@@ -76,14 +113,20 @@ impl Averager {
         }
     }
 
-    /// Restart from the newest `k` windows alone (they showed the value moved).
+    /// Restart from the newest `k` windows alone (they showed the value moved); each
+    /// counts as one window.
     pub fn restart_from_newest(&mut self, k: usize) {
-        let keep = k.min(self.entries.len());
-        self.entries.drain(..self.entries.len() - keep);
-        for e in &mut self.entries {
-            e.1 = 1.0;
+        let (mut keep, mut windows) = (0usize, 0usize);
+        while windows < k && keep < self.entries.len() {
+            windows += if keep < 64 && self.pair_bits >> keep & 1 == 1 { 2 } else { 1 };
+            keep += 1;
         }
-        self.accepted = keep as u64;
+        self.entries.drain(..self.entries.len() - keep);
+        self.changes = self.changes.wrapping_add(1);
+        for (i, e) in self.entries.iter_mut().rev().enumerate() {
+            e.1 = if i < 64 && self.pair_bits >> i & 1 == 1 { 2.0 } else { 1.0 };
+        }
+        self.accepted = windows as u64;
     }
 
     /// Current combined value; `None` before any window.
@@ -165,6 +208,7 @@ impl Averager {
     pub fn restore_prior(&mut self, value_deg: f64, weight: f64, accepted: u64) {
         self.entries.clear();
         self.push_weighted(value_deg, weight);
+        self.pair_bits = 0;
         self.accepted = accepted;
     }
 }
@@ -239,6 +283,43 @@ mod tests {
         a.restart_from_newest(3);
         let c = a.combined().unwrap();
         assert!((c.value_deg - 1.8).abs() < 1e-9, "{}", c.value_deg);
+        assert_eq!(c.weight, 3.0);
+        assert_eq!(a.accepted(), 3);
+    }
+
+    #[test]
+    fn a_pair_merges_into_its_own_entry_only() {
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        a.push(1.0);
+        let h = a.push_window(0.4, 1.0);
+        assert!(a.merge_newest(h, 0.0, 0.25));
+        let c = a.combined().unwrap();
+        assert!((c.weight - 2.25).abs() < 1e-12);
+        assert!((c.value_deg - (1.0 + 0.4 + 0.0 * 0.25) / 2.25).abs() < 1e-12);
+        assert_eq!(a.accepted(), 3);
+        // Used once, and never after another window or a restart.
+        assert!(!a.merge_newest(h, 0.0, 1.0));
+        let h = a.push_window(0.5, 1.0);
+        a.push(0.6);
+        assert!(!a.merge_newest(h, 0.0, 1.0));
+        let h = a.push_window(0.5, 1.0);
+        a.restart_shifted(0.3, 4.0);
+        assert!(!a.merge_newest(h, 0.0, 1.0));
+        assert_eq!(a.accepted(), 0);
+    }
+
+    #[test]
+    fn restart_from_newest_counts_a_pair_as_two_windows() {
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        for _ in 0..10 {
+            a.push(0.2);
+        }
+        let h = a.push_window(1.6, 1.0);
+        assert!(a.merge_newest(h, 2.0, 1.0));
+        a.push(1.9);
+        a.restart_from_newest(3);
+        let c = a.combined().unwrap();
+        assert!((c.value_deg - (1.8 * 2.0 + 1.9) / 3.0).abs() < 1e-9, "{}", c.value_deg);
         assert_eq!(c.weight, 3.0);
         assert_eq!(a.accepted(), 3);
     }

@@ -89,6 +89,10 @@ pub struct EstimatorConfig {
     /// shows in the estimate before the settled blocks confirm it and is applied at
     /// drive-off.
     pub live_standstill_pitch: bool,
+    /// The deceleration and acceleration windows of one stop enter the average as one
+    /// entry. Both start from the same standstill reference, and an error in it (a
+    /// door shock on a short stop) moves them in opposite directions.
+    pub pair_stop_windows: bool,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -130,6 +134,7 @@ impl Default for EstimatorConfig {
             shift_windows: 3,
             weight_windows: true,
             live_standstill_pitch: true,
+            pair_stop_windows: true,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,

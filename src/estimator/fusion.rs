@@ -103,7 +103,16 @@ impl Estimator {
                 } else {
                     1.0
                 };
-                self.avg.push_window(r2b.to_degrees(), weight);
+                let open_pair = self.open_pair.take();
+                let paired = condition == Condition::AccelAfterStop
+                    && self.cfg.pair_stop_windows
+                    && open_pair.is_some_and(|h| self.avg.merge_newest(h, r2b.to_degrees(), weight));
+                if !paired {
+                    let h = self.avg.push_window(r2b.to_degrees(), weight);
+                    if condition == Condition::DecelBeforeStop {
+                        self.open_pair = Some(h);
+                    }
+                }
                 self.last_slope_rad = Some(g.slope_rad);
                 self.refresh_estimate();
                 if shifted {
@@ -132,11 +141,16 @@ impl Estimator {
                     emit(Event::WindowAccepted { window, estimate });
                 }
             }
-            Err(reason) => emit(Event::WindowRejected {
-                t_s,
-                condition,
-                reason,
-            }),
+            Err(reason) => {
+                if condition == Condition::AccelAfterStop {
+                    self.open_pair = None;
+                }
+                emit(Event::WindowRejected {
+                    t_s,
+                    condition,
+                    reason,
+                })
+            }
         }
     }
 

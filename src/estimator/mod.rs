@@ -27,7 +27,7 @@ mod stillness;
 pub mod types;
 pub mod window;
 
-pub use average::{Averager, Combined};
+pub use average::{Averager, Combined, PairHandle};
 pub use config::{Averaging, ConfigError, EstimatorConfig};
 pub use events::{Condition, DropReason, Estimate, Event, WindowReport};
 pub use lever::LeverFit;
@@ -84,6 +84,9 @@ pub struct Estimator {
     fwd_ctx: Option<ForwardCtx>,
     bwd: WindowIntegrator,
     avg: Averager,
+    /// The deceleration window accepted at the current stop, waiting for the
+    /// acceleration window of the same stop to pair with.
+    open_pair: Option<PairHandle>,
     baseline_pitch_rad: Option<f64>,
     last_slope_rad: Option<f64>,
     estimate: Option<Estimate>,
@@ -136,6 +139,7 @@ impl Estimator {
                 cfg.average_capacity,
                 cfg.window_sigma_prior_deg,
             ),
+            open_pair: None,
             baseline_pitch_rad: None,
             last_slope_rad: None,
             estimate: None,
