@@ -118,13 +118,21 @@ impl Averager {
     pub fn restart_from_newest(&mut self, k: usize) {
         let (mut keep, mut windows) = (0usize, 0usize);
         while windows < k && keep < self.entries.len() {
-            windows += if keep < 64 && self.pair_bits >> keep & 1 == 1 { 2 } else { 1 };
+            windows += if keep < 64 && self.pair_bits >> keep & 1 == 1 {
+                2
+            } else {
+                1
+            };
             keep += 1;
         }
         self.entries.drain(..self.entries.len() - keep);
         self.changes = self.changes.wrapping_add(1);
         for (i, e) in self.entries.iter_mut().rev().enumerate() {
-            e.1 = if i < 64 && self.pair_bits >> i & 1 == 1 { 2.0 } else { 1.0 };
+            e.1 = if i < 64 && self.pair_bits >> i & 1 == 1 {
+                2.0
+            } else {
+                1.0
+            };
         }
         self.accepted = windows as u64;
     }
@@ -319,7 +327,11 @@ mod tests {
         a.push(1.9);
         a.restart_from_newest(3);
         let c = a.combined().unwrap();
-        assert!((c.value_deg - (1.8 * 2.0 + 1.9) / 3.0).abs() < 1e-9, "{}", c.value_deg);
+        assert!(
+            (c.value_deg - (1.8 * 2.0 + 1.9) / 3.0).abs() < 1e-9,
+            "{}",
+            c.value_deg
+        );
         assert_eq!(c.weight, 3.0);
         assert_eq!(a.accepted(), 3);
     }

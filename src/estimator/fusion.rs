@@ -106,7 +106,8 @@ impl Estimator {
                 let open_pair = self.open_pair.take();
                 let paired = condition == Condition::AccelAfterStop
                     && self.cfg.pair_stop_windows
-                    && open_pair.is_some_and(|h| self.avg.merge_newest(h, r2b.to_degrees(), weight));
+                    && open_pair
+                        .is_some_and(|h| self.avg.merge_newest(h, r2b.to_degrees(), weight));
                 if !paired {
                     let h = self.avg.push_window(r2b.to_degrees(), weight);
                     if condition == Condition::DecelBeforeStop {

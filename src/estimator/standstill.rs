@@ -60,8 +60,10 @@ pub(super) struct Standstill {
     /// The IMU saw the car move in the wheel sensors' dead zone since the previous
     /// standstill: a pitch step is not a load change.
     pub(super) crept: bool,
-    /// Specific force at the start of the standstill (before anything settled), m/s^2.
+    /// Specific force at the start of the standstill (before anything settled), m/s^2,
+    /// the mean over the quarter second before `t_begin_s`.
     pub(super) f_begin: Vector3<f64>,
+    pub(super) t_begin_s: f64,
     /// Speed the IMU sees the car pick up; ends the standstill at a drive-off.
     pub(super) motion: Option<MotionTracker>,
     /// Nothing watched the wheels between the load baseline and this standstill.
@@ -182,6 +184,7 @@ impl Estimator {
             moved,
             crept,
             f_begin: f_rest,
+            t_begin_s: t_now,
             motion,
             motion_unknown,
             settled_done: false,
@@ -400,7 +403,14 @@ impl Estimator {
                     }
                 }
             }
-            _ => self.baseline_pitch_rad = Some(pitch),
+            _ => {
+                if st.moved
+                    && let Some(turn) = self.turn_before_settling(&st, pitch)
+                {
+                    self.apply_load_change(turn, pitch, t_now, emit);
+                }
+                self.baseline_pitch_rad = Some(pitch);
+            }
         }
         // The baseline now stands here: odometry counts from this stop. (A standstill
         // that never settles, such as one declared while still rolling below the
@@ -440,6 +450,32 @@ impl Estimator {
             },
         };
         self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
+    }
+
+    /// A load that came in before the stop settled: a door shock or the ramp itself
+    /// kept the samples from settling until it was done, so neither the settled blocks
+    /// nor the live pitch had a reference before it. The gyro saw the body turn from
+    /// the start of the standstill to the settled samples, and the specific force
+    /// moved with it. Returns the turn, rad, when both agree on at least twice the
+    /// load-change threshold (twice: the body may still rock a little at the start).
+    fn turn_before_settling(&self, st: &Standstill, settled_pitch_rad: f64) -> Option<f64> {
+        let q_begin = attitude_from_gravity(&st.f_begin)?;
+        let n = self.hist.len();
+        // `f_begin` is the mean of the quarter second before the start.
+        let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
+        let to = self
+            .index_at(0.5 * (st.seg_first_s + st.seg_last_s))
+            .min(n - 1);
+        if to <= from {
+            return None;
+        }
+        let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
+        let sf = settled_pitch_rad - pitch_of(&q_begin);
+        let thr = 2.0 * self.cfg.load_change_deg.to_radians();
+        (turn.abs() > thr
+            && sf.signum() == turn.signum()
+            && (sf - turn).abs() <= TURN_MATCH_TOL_RAD + TURN_MATCH_SHARE * turn.abs())
+        .then_some(turn)
     }
 
     /// Follow the body's pitch at rest with the gyro from the settled reference (see
