@@ -594,16 +594,15 @@ impl Estimator {
         // The body turned at rest since the settled reference and the live pitch showed
         // it: a load that came in too late for the settled blocks to confirm. The gyro
         // gives the step up to the drive-off.
-        let mut imu_pitch_rad = pitch_of(&q_ref);
+        let imu_pitch_rad = pitch_of(&q_ref);
         if settled && live_active {
-            let delta = pitch_of(&q0) - imu_pitch_rad;
+            let (delta, turned_pitch) = (pitch_of(&q0) - imu_pitch_rad, pitch_of(&q0));
             if delta.abs() > self.cfg.load_change_deg.to_radians() {
-                imu_pitch_rad += delta;
-                self.apply_load_change(delta, imu_pitch_rad, t_now, emit);
+                self.apply_load_change(delta, turned_pitch, t_now, emit);
                 // The load was still moving the body as the car pulled away: the body
                 // need not keep one pitch over the road through the window.
                 let r = Err(RejectReason::NotStill);
-                self.report_window(r, Condition::AccelAfterStop, imu_pitch_rad, t_now, emit);
+                self.report_window(r, Condition::AccelAfterStop, turned_pitch, t_now, emit);
                 return;
             }
         }
