@@ -89,9 +89,9 @@ pub struct EstimatorConfig {
     /// shows in the estimate before the settled blocks confirm it and is applied at
     /// drive-off.
     pub live_standstill_pitch: bool,
-    /// The deceleration and acceleration windows of one stop enter the average as one
-    /// entry. Both start from the same standstill reference, and an error in it (a
-    /// door shock on a short stop) moves them in opposite directions.
+    /// The deceleration and acceleration windows of a stop shorter than 8 s enter the
+    /// average as one entry. Both start from the same standstill reference, and an
+    /// error in it (a door shock on a short stop) moves them in opposite directions.
     pub pair_stop_windows: bool,
     /// How windows are combined.
     pub averaging: Averaging,
