@@ -197,10 +197,10 @@ impl Estimator {
                 .rocking_at(i)
                 .filter(|(a, _)| a.norm() >= MIN_ALPHA_RPS2)
             {
-                let res = self.acc_smoothed_like_rocking(i) - q.inverse() * up;
+                let g_imu = q.inverse() * up;
+                let res = self.acc_smoothed_like_rocking(i) - g_imu;
                 let m = skew(&alpha) + skew(&omega) * skew(&omega);
                 let predicted = m * self.lever_arm;
-                let g_imu = q.inverse() * up;
                 const SPAN: usize = 2 * super::history::LEVER_SMOOTH_HALF;
                 let impulsive = (i - SPAN..=(i + SPAN).min(n - 1))
                     .any(|j| (self.hist.get(j).acc() - g_imu).amax() > MAX_ROCKING_MPS2);

@@ -28,6 +28,14 @@ const LIVE_PITCH_PERSIST_S: f64 = 0.3;
 const TURN_MATCH_TOL_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
 const TURN_MATCH_SHARE: f64 = 0.3;
 
+/// The pitch step seen in the specific force agrees with the turn the gyro saw, within
+/// `TURN_MATCH_TOL_RAD` plus `TURN_MATCH_SHARE` of `scale_rad` (the step taken as the
+/// more trustworthy of the two), rad.
+fn turn_matches(force_step_rad: f64, gyro_turn_rad: f64, scale_rad: f64) -> bool {
+    (force_step_rad - gyro_turn_rad).abs()
+        <= TURN_MATCH_TOL_RAD + TURN_MATCH_SHARE * scale_rad.abs()
+}
+
 /// A turn of the body at rest that began at least this long before the drive-off's
 /// start is a load coming in, not the squat of the drive-off, s.
 const LOAD_TURN_LEAD_S: f64 = 0.5;
@@ -339,9 +347,7 @@ impl Estimator {
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
-                if gyro_delta.is_some_and(|g| {
-                    (sf_delta - g).abs() > TURN_MATCH_TOL_RAD + TURN_MATCH_SHARE * sf_delta.abs()
-                }) {
+                if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta)) {
                     // The newer stretch is the better reference; the load stays.
                     st.seg_sum = psum + block;
                     st.seg_n = pn + block_n;
@@ -478,10 +484,8 @@ impl Estimator {
         let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
         let sf = settled_pitch_rad - pitch_of(&q_begin);
         let thr = 2.0 * self.cfg.load_change_deg.to_radians();
-        (turn.abs() > thr
-            && sf.signum() == turn.signum()
-            && (sf - turn).abs() <= TURN_MATCH_TOL_RAD + TURN_MATCH_SHARE * turn.abs())
-        .then_some(turn)
+        (turn.abs() > thr && sf.signum() == turn.signum() && turn_matches(sf, turn, turn))
+            .then_some(turn)
     }
 
     /// Follow the body's pitch at rest with the gyro from the settled reference (see
