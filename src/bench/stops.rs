@@ -3,7 +3,7 @@
 
 use super::realistic::StopKind;
 use super::suite::Case;
-use crate::estimator::{Condition, Estimator, EstimatorConfig, Event};
+use crate::estimator::{Condition, Estimator, EstimatorConfig, Event, RejectReason};
 use crate::sim::{Input, simulate};
 use serde::Serialize;
 
@@ -32,6 +32,8 @@ pub struct StopChecks {
     /// Full stops left with a gentle drive-off, and how many gave an accepted window.
     pub gentle_drive_offs: usize,
     pub gentle_accepted: usize,
+    /// Why the other gentle drive-offs gave no window.
+    pub gentle_lost: LostDriveOffs,
     /// Rolling stops, and how many gave an accepted window or a load change.
     pub rolling_stops: usize,
     pub rolling_with_output: usize,
@@ -44,6 +46,44 @@ pub struct StopChecks {
     /// Signed errors of the accepted windows, deg.
     #[serde(skip)]
     pub window_errors: Vec<f64>,
+}
+
+/// Why gentle drive-offs gave no accepted window: the first rejection of an acceleration
+/// window after the drive-off, or no standstill at that stop at all.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct LostDriveOffs {
+    /// No standstill began at the stop (too short, or the body never quiet).
+    pub no_standstill: usize,
+    /// The reference at the drive-off was not good enough (`NotStill`).
+    pub not_still: usize,
+    pub slope_not_constant: usize,
+    pub turning: usize,
+    pub speed_mismatch: usize,
+    /// Too short, too slow, an IMU gap, or no window event at all.
+    pub other: usize,
+}
+
+impl LostDriveOffs {
+    fn count(&mut self, reason: Option<RejectReason>, had_standstill: bool) {
+        let slot = match reason {
+            _ if !had_standstill => &mut self.no_standstill,
+            Some(RejectReason::NotStill) => &mut self.not_still,
+            Some(RejectReason::SlopeNotConstant { .. }) => &mut self.slope_not_constant,
+            Some(RejectReason::Turning { .. }) => &mut self.turning,
+            Some(RejectReason::SpeedMismatch { .. }) => &mut self.speed_mismatch,
+            _ => &mut self.other,
+        };
+        *slot += 1;
+    }
+
+    fn add(&mut self, o: &Self) {
+        self.no_standstill += o.no_standstill;
+        self.not_still += o.not_still;
+        self.slope_not_constant += o.slope_not_constant;
+        self.turning += o.turning;
+        self.speed_mismatch += o.speed_mismatch;
+        self.other += o.other;
+    }
 }
 
 /// Run leveld (default configuration) over a realistic case and check its stops.
@@ -122,6 +162,21 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
                             && window.t_s < t_go + DRIVE_OFF_WINDOW_S)
                 });
                 out.gentle_accepted += usize::from(accepted);
+                if !accepted {
+                    let had_standstill = events.iter().any(|e| {
+                        matches!(e, Event::StandstillStarted { t_s, .. }
+                            if *t_s >= t_stop - 1.0 && *t_s < t_go + 1.0)
+                    });
+                    let reason = events.iter().find_map(|e| match e {
+                        Event::WindowRejected {
+                            t_s,
+                            condition: Condition::AccelAfterStop,
+                            reason,
+                        } if *t_s > t_go - 1.0 && *t_s < t_go + DRIVE_OFF_WINDOW_S => Some(*reason),
+                        _ => None,
+                    });
+                    out.gentle_lost.count(reason, had_standstill);
+                }
             }
             StopKind::Rolling => {
                 out.rolling_stops += 1;
@@ -170,6 +225,7 @@ pub struct StopSummary {
     pub drives: usize,
     pub gentle_drive_offs: usize,
     pub gentle_accepted: usize,
+    pub gentle_lost: LostDriveOffs,
     pub rolling_stops: usize,
     pub rolling_with_output: usize,
     pub load_changes: usize,
@@ -205,6 +261,10 @@ pub fn summarize(checks: &[StopChecks]) -> Vec<StopSummary> {
                 drives: g.len(),
                 gentle_drive_offs: g.iter().map(|c| c.gentle_drive_offs).sum(),
                 gentle_accepted: g.iter().map(|c| c.gentle_accepted).sum(),
+                gentle_lost: g.iter().fold(LostDriveOffs::default(), |mut a, c| {
+                    a.add(&c.gentle_lost);
+                    a
+                }),
                 rolling_stops: g.iter().map(|c| c.rolling_stops).sum(),
                 rolling_with_output: g.iter().map(|c| c.rolling_with_output).sum(),
                 load_changes: g.iter().map(|c| c.load_changes).sum(),

@@ -149,6 +149,31 @@ pub fn accuracy(
                     s.mean_window_err_deg,
                 )?;
             }
+            writeln!(out)?;
+            writeln!(
+                out,
+                "| scenario | load | gentle drive-offs without a window | no standstill | reference not still | slope not constant | turning | speed mismatch | other |"
+            )?;
+            writeln!(
+                out,
+                "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+            )?;
+            for s in &summary {
+                let l = &s.gentle_lost;
+                writeln!(
+                    out,
+                    "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                    s.scenario,
+                    s.load,
+                    s.gentle_drive_offs - s.gentle_accepted,
+                    l.no_standstill,
+                    l.not_still,
+                    l.slope_not_constant,
+                    l.turning,
+                    l.speed_mismatch,
+                    l.other,
+                )?;
+            }
         }
     }
     if let Some(dir) = plots {
