@@ -76,6 +76,16 @@ impl LostDriveOffs {
         *slot += 1;
     }
 
+    /// Drive-offs counted, whatever the reason.
+    pub fn total(&self) -> usize {
+        self.no_standstill
+            + self.not_still
+            + self.slope_not_constant
+            + self.turning
+            + self.speed_mismatch
+            + self.other
+    }
+
     fn add(&mut self, o: &Self) {
         self.no_standstill += o.no_standstill;
         self.not_still += o.not_still;
