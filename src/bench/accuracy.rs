@@ -63,6 +63,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         learn_lever_arm: false,
         ..d()
     };
+    let no_acc_bias = EstimatorConfig {
+        correct_acc_bias: false,
+        ..d()
+    };
     let equal_weights = EstimatorConfig {
         weight_windows: false,
         ..d()
@@ -88,6 +92,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         chord_check_extra_m: 0.0,
         load_change_deg: 90.0,
         learn_lever_arm: false,
+        correct_acc_bias: false,
         weight_windows: false,
         drive_off_speed_mps: 1e3,
         live_standstill_pitch: false,
@@ -109,6 +114,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_load, "no-load-step")),
         Box::new(Leveld::new(no_shift, "no-shift-check")),
         Box::new(Leveld::new(no_learn, "no-lever-learning")),
+        Box::new(Leveld::new(no_acc_bias, "no-acc-bias-correction")),
         Box::new(Leveld::new(equal_weights, "equal-weights")),
         Box::new(Leveld::new(no_imu_drive_off, "no-imu-drive-off")),
         Box::new(Leveld::new(no_live_pitch, "no-live-standstill-pitch")),

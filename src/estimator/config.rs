@@ -68,6 +68,13 @@ pub struct EstimatorConfig {
     pub lever_arm_m: [f64; 3],
     /// Refine `lever_arm_m` along x and z from the body rocking seen after each stop.
     pub learn_lever_arm: bool,
+    /// Remove the horizontal accelerometer bias that the standstill gravity magnitude
+    /// reveals over stops at different pitch (`estimator/gravity.rs`) from every window
+    /// and its reference. The paper's cancellation of a bias between reference and
+    /// window holds only while the body keeps its reference attitude; a body that
+    /// dives 0.3 deg per m/s^2 while braking turns a 0.3 m/s^2 bias into a vertical
+    /// 1.5 mm/s^2 per m/s^2 of deceleration: about 0.09 deg on every window.
+    pub correct_acc_bias: bool,
     /// IMU history kept for the deceleration window (integrated backwards from the stop), s.
     pub history_s: f64,
     /// A step in standstill IMU pitch above this is taken as a load change, deg.
@@ -126,6 +133,7 @@ impl Default for EstimatorConfig {
             max_imu_gap_s: 0.1,
             lever_arm_m: [2.0, 0.0, 0.3],
             learn_lever_arm: true,
+            correct_acc_bias: true,
             history_s: 30.0,
             load_change_deg: 0.2,
             load_block_s: 0.5,

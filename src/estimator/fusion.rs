@@ -63,6 +63,7 @@ impl Estimator {
         WindowSetup {
             q0,
             gyro_bias_rps: self.bias_rps.unwrap_or_else(Vector3::zeros),
+            acc_bias_mps2: self.acc_bias_mps2(),
             gravity_mps2: g,
             lever_arm_m: self.lever_arm(),
             distance_m: c.window_distance_m,

@@ -2,7 +2,7 @@
 
 use super::Estimator;
 use super::attitude;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 impl Estimator {
     pub(super) fn update_gravity(&mut self, t_s: f64, f: &Vector3<f64>) {
@@ -11,6 +11,54 @@ impl Estimator {
             GravityFilter::new(f.norm(), 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
         });
         k.update(t_s, f, q);
+    }
+
+    /// Horizontal accelerometer bias the gravity filter has seen, body axes, m/s^2 (zero
+    /// without a filter or with `correct_acc_bias` off). Windows and their references
+    /// remove it alike; it changes only as settled samples come in, so one window
+    /// evaluation sees one value.
+    pub(super) fn acc_bias_mps2(&self) -> Vector3<f64> {
+        match self.stop_bias {
+            Some(f) if self.cfg.correct_acc_bias => Vector3::new(f.x.y, f.x.z, 0.0),
+            _ => Vector3::zeros(),
+        }
+    }
+
+    /// One settled stop's mean specific force `f_mean` (pitch centre, `n` samples) for
+    /// the accelerometer bias: stops at different pitch see gravity along different body
+    /// directions, and the magnitude follows the bias along them.
+    pub(super) fn update_stop_bias(&mut self, t_s: f64, f_mean: &Vector3<f64>, n: u64) {
+        let m = f_mean.norm();
+        if m <= 0.0 || n == 0 || !m.is_finite() {
+            return;
+        }
+        // The per-sample spread the gravity filter has learnt, averaged over the stop,
+        // and a floor for what averaging does not remove (the rest of the rocking, a
+        // door shock, the lever-arm model).
+        let r_sample = self.gravity.map_or(1e-3, |g| g.r);
+        let r = STOP_FLOOR_MPS2 * STOP_FLOOR_MPS2 + r_sample / n as f64;
+        let q = self.cfg.gravity_walk_mps2_rts;
+        let f = self
+            .stop_bias
+            .get_or_insert_with(|| GravityFilter::new(m, 1.0, [0.0; 2], STOP_BIAS_PRIOR_MPS2));
+        f.update_with(t_s, f_mean, q, r);
+    }
+
+    /// Attitude and gravity magnitude of a window whose reference is the raw standstill
+    /// mean `f_mean`, with `acc_bias_mps2` removed from both. The magnitude is the one
+    /// the gravity filter expects along the mean's direction (a short stop alone
+    /// measures it too noisily); the bias comes off that vector, exactly: a 0.3 m/s^2
+    /// bias shortens it by 4.6 mm/s^2 beyond its first-order term.
+    pub(super) fn window_reference(
+        &self,
+        f_mean: &Vector3<f64>,
+    ) -> Option<(UnitQuaternion<f64>, f64)> {
+        let m = f_mean.norm();
+        if !(m > 0.0) {
+            return None;
+        }
+        let f = f_mean * (self.gravity_mps2(f_mean) / m) - self.acc_bias_mps2();
+        Some((attitude::attitude_from_gravity(&f)?, f.norm()))
     }
 
     /// Gravity magnitude for a window whose reference is the standstill mean `f_mean`.
@@ -26,6 +74,13 @@ impl Estimator {
 pub(super) fn pitch_from(f: &Vector3<f64>) -> Option<f64> {
     attitude::pitch_roll_from_gravity(f).map(|(p, _)| p)
 }
+
+/// What one stop's mean magnitude leaves unexplained beyond its sample noise, m/s^2.
+const STOP_FLOOR_MPS2: f64 = 0.003;
+
+/// Prior spread of the horizontal accelerometer bias for the stop filter, m/s^2: an
+/// uncalibrated MEMS part can be 20-30 mg off.
+const STOP_BIAS_PRIOR_MPS2: f64 = 0.2;
 
 /// Kalman filter on the standstill specific-force magnitude. An accelerometer bias `b`
 /// makes the magnitude depend on where gravity points in the body: |g u + b| is about
@@ -74,16 +129,32 @@ impl GravityFilter {
         if m <= 0.0 {
             return;
         }
+        let y = self.innovation(t_s, f, q);
+        self.r = (0.995 * self.r + 0.005 * y * y).max(1e-8);
+        self.correct(f, y, self.r);
+    }
+
+    /// Update with a measurement of known variance `r`, (m/s^2)^2.
+    fn update_with(&mut self, t_s: f64, f: &Vector3<f64>, q: f64, r: f64) {
+        let y = self.innovation(t_s, f, q);
+        self.correct(f, y, r);
+    }
+
+    /// Let the state walk to `t_s`; the magnitude of `f` against the prediction.
+    fn innovation(&mut self, t_s: f64, f: &Vector3<f64>, q: f64) -> f64 {
         if let Some(t0) = self.last_t {
             let walk = q * q * (t_s - t0).max(0.0);
             self.p += Matrix3::from_diagonal_element(walk);
         }
         self.last_t = Some(t_s);
-        let h = Self::regressor(&(f / m));
-        let y = m - h.dot(&self.x);
-        self.r = (0.995 * self.r + 0.005 * y * y).max(1e-8);
+        let m = f.norm();
+        m - Self::regressor(&(f / m)).dot(&self.x)
+    }
+
+    fn correct(&mut self, f: &Vector3<f64>, y: f64, r: f64) {
+        let h = Self::regressor(&(f / f.norm()));
         let ph = self.p * h;
-        let k = ph / (h.dot(&ph) + self.r);
+        let k = ph / (h.dot(&ph) + r);
         self.x += k * y;
         self.p -= k * ph.transpose();
     }

@@ -90,10 +90,10 @@ impl Estimator {
         self.index_at(t0).max(floor)
     }
 
-    /// Mean specific force of the rest samples from `rest` to `first`, each turned by
-    /// the gyro into the body frame at `first` and freed of the lever-arm motion: the
-    /// gravity reference at `first` even while the body rocked. `None` with less than
-    /// `MIN_REST_S` of samples.
+    /// Mean specific force of the rest samples from `rest` to `first`, each freed of
+    /// `acc_bias_mps2` and of the lever-arm motion and turned by the gyro into the body
+    /// frame at `first`: the gravity reference of a window at `first` even while the
+    /// body rocked. `None` with less than `MIN_REST_S` of samples.
     pub(super) fn derotated_reference(&self, rest: usize, first: usize) -> Option<Vector3<f64>> {
         const MIN_REST_S: f64 = 0.3;
         // The first samples after the rest edge still carry the stop jerk.
@@ -102,12 +102,13 @@ impl Estimator {
             return None;
         }
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let acc_bias = self.acc_bias_mps2();
         // Rotation from the frame at sample j to the frame at `first`.
         let mut q = UnitQuaternion::identity();
         let (mut sum, mut k) = (Vector3::zeros(), 0usize);
         let mut j = first;
         loop {
-            sum += q * (self.hist.get(j).acc() - self.lever_acc_at(j));
+            sum += q * (self.hist.get(j).acc() - acc_bias - self.lever_acc_at(j));
             k += 1;
             if j == start {
                 break;
@@ -181,8 +182,6 @@ impl Estimator {
         let up = Vector3::new(0.0, 0.0, g);
         let mut q = q_ref;
         let mut res = [0.0f64; AVG];
-        // Attitudes of the last AVG samples visited, the one at `edge` among them.
-        let mut qs = [q_ref; AVG];
         let (mut edge, mut q_edge) = (from, q_ref);
         let mut i = from;
         let mut k = 0usize;
@@ -191,16 +190,19 @@ impl Estimator {
             // The IMU rides the rocking body at the lever arm: remove that acceleration.
             let lever_acc = self.lever_acc_at(i);
             res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
-            qs[k % AVG] = q;
             k += 1;
             if k >= AVG {
                 if (res.iter().sum::<f64>() / AVG as f64).abs() > tol {
                     break;
                 }
-                // The newest sample of this window is certainly at rest; its attitude
-                // was visited AVG - 1 steps ago.
-                edge = i + AVG - 1;
-                q_edge = qs[k % AVG];
+                // The window's oldest sample is the edge: the first one at rest. Its
+                // newest would be safer against a braking sample, but by then the body
+                // rebounds from its dive at a few hundredths of a rad/s, and the walk's
+                // start velocity omega x lever arm would lean on the learnt arm (a 1 %
+                // shorter arm cost 0.03 deg per deceleration window). A braking sample
+                // inside the window would have failed the test above.
+                edge = i;
+                q_edge = q;
             }
             if i == 0 || i <= lowest {
                 break;
@@ -213,7 +215,8 @@ impl Estimator {
         (edge.min(from), q_edge)
     }
 
-    /// Velocity of the IMU at sample `i` (frame of its attitude `q_i`, m/s) while the
+    /// Velocity of the IMU at sample `i` (frame of its window attitude `q_i`, which
+    /// assumes `acc_bias_mps2` removed, m/s) while the
     /// pitch centre is at rest but the body may still rock on its suspension. Each rest
     /// sample j on the `later` side gives omega_j x lever arm, carried to `i` by the
     /// integrated acceleration between them; the mean over `REST_VELOCITY_S` averages
@@ -231,6 +234,7 @@ impl Estimator {
         const REST_VELOCITY_S: f64 = 0.25;
         const SKIP: usize = 2;
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let acc_bias = self.acc_bias_mps2();
         let lever = self.lever_arm();
         let up = Vector3::new(0.0, 0.0, g);
         let n = self.hist.len();
@@ -250,7 +254,8 @@ impl Estimator {
             let dt = b.t_s - a.t_s;
             let q_next = attitude::propagate(&q, &((a.gyro_rps() + b.gyro_rps()) * 0.5 - bias), dt);
             // dv = v_next - v_i, in time order whichever way the walk goes.
-            dv += ((q * a.acc() - up) + (q_next * b.acc() - up)) * (0.5 * dt);
+            dv += ((q * (a.acc() - acc_bias) - up) + (q_next * (b.acc() - acc_bias) - up))
+                * (0.5 * dt);
             q = q_next;
             j = next;
             if j.abs_diff(i) > SKIP {

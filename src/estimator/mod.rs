@@ -64,6 +64,9 @@ pub struct Estimator {
     /// Settled specific-force magnitude, the g of eq. 12-13: measured rather than
     /// nominal so that an accelerometer bias along z cancels.
     gravity: Option<GravityFilter>,
+    /// The same model fed one settled stop at a time with an honest variance: the
+    /// accelerometer bias the windows remove (`acc_bias_mps2`).
+    stop_bias: Option<GravityFilter>,
     /// Settled samples waiting one stillness window before they join the reference.
     settle_queue: std::collections::VecDeque<ImuSample>,
     /// The last stillness window was close enough to the bias to update it.
@@ -131,6 +134,7 @@ impl Estimator {
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),
             gravity: None,
+            stop_bias: None,
             fwd: WindowIntegrator::with_capacity(win_cap),
             fwd_ctx: None,
             bwd: WindowIntegrator::with_capacity(win_cap),

@@ -25,6 +25,10 @@ pub struct EstimatorState {
     /// Lever-arm fit from the rocking at stops (see `lever`).
     #[serde(default)]
     pub lever_fit: Option<LeverFit>,
+    /// The stop-by-stop magnitude fit the windows take their accelerometer bias from:
+    /// magnitude (bias along z included), bias along x and y, m/s^2.
+    #[serde(default)]
+    pub stop_gravity_mps2: Option<[f64; 3]>,
 }
 
 impl EstimatorState {
@@ -63,6 +67,7 @@ impl Estimator {
             gravity_mps2: self.gravity.map(|g| g.x.x),
             accel_bias_xy_mps2: self.gravity.map(|g| [g.x.y, g.x.z]),
             lever_fit: Some(self.lever_fit),
+            stop_gravity_mps2: self.stop_bias.map(|g| [g.x.x, g.x.y, g.x.z]),
         }
     }
 
@@ -120,6 +125,13 @@ impl Estimator {
         {
             return Err(StateError::Implausible("accel_bias_xy_mps2"));
         }
+        if let Some([c, bx, by]) = st.stop_gravity_mps2
+            && !(c.is_finite()
+                && (5.0..15.0).contains(&c)
+                && [bx, by].iter().all(|b| b.is_finite() && b.abs() <= 2.0))
+        {
+            return Err(StateError::Implausible("stop_gravity_mps2"));
+        }
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         let prior = Vector3::from(self.cfg.lever_arm_m);
         self.lever_fit = st.lever_fit.unwrap_or_default();
@@ -135,6 +147,11 @@ impl Estimator {
             let bias = st.accel_bias_xy_mps2.unwrap_or([0.0; 2]);
             GravityFilter::new(g, 1e-5, bias, 0.01)
         });
+        // The bias stands as learnt; its spread stays wide enough for a bias that
+        // drifted while the car was parked.
+        self.stop_bias = st
+            .stop_gravity_mps2
+            .map(|[c, bx, by]| GravityFilter::new(c, 1e-4, [bx, by], 0.02));
         self.refresh_estimate();
         Ok(())
     }

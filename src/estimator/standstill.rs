@@ -444,8 +444,14 @@ impl Estimator {
         // The rocking after this stop refines the lever arm before the walk uses it.
         self.learn_lever(q_ref, rest, settled, g);
         let (rest, q0) = self.rocking_rest_edge(q_ref, settled, floor, g);
-        let setup = self.window_setup(q0, g);
-        let v0 = self.rest_velocity(q0, rest, true, g);
+        let Some((q_win, g_win)) = self.window_reference(&st.mean()) else {
+            return;
+        };
+        // The walk starts from the reference freed of the accelerometer bias, turned by
+        // the gyro as far as the rest edge.
+        let q0 = q_win * (q_ref.inverse() * q0);
+        let setup = self.window_setup(q0, g_win);
+        let v0 = self.rest_velocity(q0, rest, true, g_win);
         self.bwd.start(setup, v0);
         let mut result = None;
         for i in (0..=rest).rev() {
@@ -461,7 +467,8 @@ impl Estimator {
                 Step::Continue => return,
             },
         };
-        self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
+        let pitch_win = pitch_of(&q_win);
+        self.report_window(r, Condition::DecelBeforeStop, pitch_win, st.t_rest_s, emit);
     }
 
     /// A load that came in before the stop settled: a door shock or the ramp itself
@@ -559,6 +566,9 @@ impl Estimator {
         let n = self.hist.len();
         let floor = self.index_at(st.t_rest_s);
         let settled = st.seg_n >= MIN_SETTLED_SAMPLES;
+        if settled {
+            self.update_stop_bias(t_now, &st.mean(), st.seg_n);
+        }
         let g_mean = if settled { st.mean() } else { st.f_begin };
         // After the body turned at rest, it rests on the gravity of its new attitude.
         let g_mean = match (st.live.q, attitude_from_gravity(&g_mean)) {
@@ -619,7 +629,16 @@ impl Estimator {
                 return;
             }
         }
-        let setup = self.window_setup(q0, self.gravity_mps2(&g_mean));
+        // The window's reference, freed of the accelerometer bias (the derotated reference
+        // of a short stop already is).
+        let Some((_, g_win)) = self.window_reference(&g_mean) else {
+            return;
+        };
+        let (q0, imu_pitch_rad) = match self.window_reference(&st.mean()) {
+            Some((q_win, _)) if settled => (q_win * (q_ref.inverse() * q0), pitch_of(&q_win)),
+            _ => (q0, imu_pitch_rad),
+        };
+        let setup = self.window_setup(q0, g_win);
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
         let settled_at_start = settled && self.hist.get(first).t_s - st.seg_last_s < 1.0;
         let v0 = if settled_at_start {

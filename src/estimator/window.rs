@@ -42,6 +42,9 @@ pub struct WindowSetup {
     pub q0: UnitQuaternion<f64>,
     /// Gyro bias to remove, rad/s (eq. 8).
     pub gyro_bias_rps: Vector3<f64>,
+    /// Accelerometer bias to remove, m/s^2. The reference `q0` and `gravity_mps2` must
+    /// come from a standstill mean with the same bias removed.
+    pub acc_bias_mps2: Vector3<f64>,
     /// Magnitude of the standstill specific force, used as g of eq. 12, m/s^2.
     pub gravity_mps2: f64,
     /// IMU offset from the body pitch centre, body axes, m.
@@ -105,6 +108,7 @@ impl WindowIntegrator {
             setup: WindowSetup {
                 q0: UnitQuaternion::identity(),
                 gyro_bias_rps: Vector3::zeros(),
+                acc_bias_mps2: Vector3::zeros(),
                 gravity_mps2: 9.80665,
                 lever_arm_m: Vector3::zeros(),
                 distance_m: 2.0,
@@ -179,8 +183,9 @@ impl WindowIntegrator {
         let g = Vector3::new(0.0, 0.0, self.setup.gravity_mps2);
         let q0 = self.q;
         let q1 = propagate(&q0, &((w0 + w1) * 0.5), dt);
-        let a0 = q0 * prev.acc() - g;
-        let a1 = q1 * s.acc() - g;
+        let b = self.setup.acc_bias_mps2;
+        let a0 = q0 * (prev.acc() - b) - g;
+        let a1 = q1 * (s.acc() - b) - g;
         // Eq. 12-13 with the acceleration varying linearly across the step.
         self.p += self.v * dt + (a0 * 2.0 + a1) * (dt * dt / 6.0);
         self.v += (a0 + a1) * (dt * 0.5);
@@ -296,6 +301,7 @@ mod tests {
         WindowSetup {
             q0,
             gyro_bias_rps: Vector3::zeros(),
+            acc_bias_mps2: Vector3::zeros(),
             gravity_mps2: G,
             lever_arm_m: Vector3::zeros(),
             distance_m: 2.0,
