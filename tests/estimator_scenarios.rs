@@ -235,3 +235,32 @@ fn loading_while_parked_is_confirmed_by_the_first_window_after_restart() {
         est.estimate()
     );
 }
+
+#[test]
+fn the_accelerometer_bias_learnt_at_stops_survives_a_restart_and_a_corrupt_one_is_refused() {
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    feed(&mut est, &parked_drive(0.0, 0.5, 5));
+    let saved = est.state();
+    let stop = saved
+        .stop_gravity_mps2
+        .expect("a settled stop feeds the bias filter");
+    let mut restored = Estimator::new(EstimatorConfig::default()).unwrap();
+    restored.restore(&saved).unwrap();
+    assert_eq!(restored.state().stop_gravity_mps2, Some(stop));
+    for bad in [
+        [f64::NAN, 0.0, 0.0],
+        [9.8, 3.0, 0.0],
+        [9.8, 0.0, f64::INFINITY],
+        [0.5, 0.0, 0.0],
+    ] {
+        let corrupt = leveld::estimator::EstimatorState {
+            stop_gravity_mps2: Some(bad),
+            ..saved.clone()
+        };
+        let err = Estimator::new(EstimatorConfig::default())
+            .unwrap()
+            .restore(&corrupt)
+            .expect_err("an implausible bias must be refused");
+        assert!(err.to_string().contains("stop_gravity_mps2"), "{err}");
+    }
+}

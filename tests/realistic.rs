@@ -174,6 +174,27 @@ fn a_load_ramping_in_is_seen_at_its_stop_not_taken_for_a_drive_off() {
     );
 }
 
+/// Errors of the windows accepted on `case` (deg), of one condition or all.
+fn window_errors(case: &Case, cfg: EstimatorConfig, only: Option<Condition>) -> Vec<f64> {
+    let drive = simulate(&case.scenario);
+    let mut est = Estimator::new(cfg).unwrap();
+    let mut ev = Vec::new();
+    for input in drive.merged() {
+        match input {
+            Input::Imu(s) => est.push_imu(s, &mut |e| ev.push(e)),
+            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
+        }
+    }
+    ev.iter()
+        .filter_map(|e| match e {
+            Event::WindowAccepted { window, .. } if only.is_none_or(|c| c == window.condition) => {
+                Some(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg)
+            }
+            _ => None,
+        })
+        .collect()
+}
+
 /// Mean error of the deceleration windows of a drive whose IMU sits 0.2 m further out
 /// and 0.15 m higher than configured.
 fn decel_bias(learn: bool) -> f64 {
@@ -185,26 +206,11 @@ fn decel_bias(learn: bool) -> f64 {
     let mut errs = Vec::new();
     for seed in [41, 42] {
         let case: Case = spec(seed, 12, r.clone()).cases().remove(0);
-        let drive = simulate(&case.scenario);
         let cfg = EstimatorConfig {
             learn_lever_arm: learn,
             ..EstimatorConfig::default()
         };
-        let mut est = Estimator::new(cfg).unwrap();
-        let mut ev = Vec::new();
-        for input in drive.merged() {
-            match input {
-                Input::Imu(s) => est.push_imu(s, &mut |e| ev.push(e)),
-                Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-            }
-        }
-        for e in ev {
-            if let Event::WindowAccepted { window, .. } = e
-                && window.condition == Condition::DecelBeforeStop
-            {
-                errs.push(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg);
-            }
-        }
+        errs.extend(window_errors(&case, cfg, Some(Condition::DecelBeforeStop)));
     }
     assert!(errs.len() >= 12, "{} deceleration windows", errs.len());
     errs.iter().sum::<f64>() / errs.len() as f64
@@ -229,28 +235,11 @@ fn window_mean_with_bias(seed: u64, bias_x_mps2: f64, correct: bool) -> (f64, us
     let mut case: Case = spec(seed, 12, gentle()).cases().remove(0);
     case.scenario.sensors.acc_bias_mps2 = [bias_x_mps2, 0.0, 0.0];
     case.scenario.vehicle.pitch_per_accel_deg = 0.3;
-    let drive = simulate(&case.scenario);
     let cfg = EstimatorConfig {
         correct_acc_bias: correct,
         ..EstimatorConfig::default()
     };
-    let mut est = Estimator::new(cfg).unwrap();
-    let mut ev = Vec::new();
-    for input in drive.merged() {
-        match input {
-            Input::Imu(s) => est.push_imu(s, &mut |e| ev.push(e)),
-            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-        }
-    }
-    let errs: Vec<f64> = ev
-        .iter()
-        .filter_map(|e| match e {
-            Event::WindowAccepted { window, .. } => {
-                Some(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg)
-            }
-            _ => None,
-        })
-        .collect();
+    let errs = window_errors(&case, cfg, None);
     (
         errs.iter().sum::<f64>() / errs.len().max(1) as f64,
         errs.len(),

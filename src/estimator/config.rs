@@ -73,7 +73,7 @@ pub struct EstimatorConfig {
     /// and its reference. The paper's cancellation of a bias between reference and
     /// window holds only while the body keeps its reference attitude; a body that
     /// dives 0.3 deg per m/s^2 while braking turns a 0.3 m/s^2 bias into a vertical
-    /// 1.5 mm/s^2 per m/s^2 of deceleration: about 0.09 deg on every window.
+    /// 1.6 mm/s^2 per m/s^2 of deceleration: about 0.09 deg on every window.
     pub correct_acc_bias: bool,
     /// IMU history kept for the deceleration window (integrated backwards from the stop), s.
     pub history_s: f64,

@@ -13,10 +13,10 @@ impl Estimator {
         k.update(t_s, f, q);
     }
 
-    /// Horizontal accelerometer bias the gravity filter has seen, body axes, m/s^2 (zero
-    /// without a filter or with `correct_acc_bias` off). Windows and their references
-    /// remove it alike; it changes only as settled samples come in, so one window
-    /// evaluation sees one value.
+    /// Horizontal accelerometer bias the stop filter has seen, body axes, m/s^2 (zero
+    /// before the first settled stop or with `correct_acc_bias` off). Windows and their
+    /// references remove it alike; it changes once per settled stop, as the stop ends,
+    /// so one window evaluation sees one value.
     pub(super) fn acc_bias_mps2(&self) -> Vector3<f64> {
         match self.stop_bias {
             Some(f) if self.cfg.correct_acc_bias => Vector3::new(f.x.y, f.x.z, 0.0),

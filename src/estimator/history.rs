@@ -195,12 +195,11 @@ impl Estimator {
                 if (res.iter().sum::<f64>() / AVG as f64).abs() > tol {
                     break;
                 }
-                // The window's oldest sample is the edge: the first one at rest. Its
-                // newest would be safer against a braking sample, but by then the body
-                // rebounds from its dive at a few hundredths of a rad/s, and the walk's
-                // start velocity omega x lever arm would lean on the learnt arm (a 1 %
-                // shorter arm cost 0.03 deg per deceleration window). A braking sample
-                // inside the window would have failed the test above.
+                // The window's oldest sample is the edge: the first one at rest. Four
+                // samples later the body already rebounds from its dive at 0.02-0.05
+                // rad/s, and the walk's start velocity omega x lever arm leans on the
+                // learnt arm, which comes out about 1 % short. A braking sample inside
+                // the window would have failed the test above.
                 edge = i;
                 q_edge = q;
             }
