@@ -445,6 +445,8 @@ impl Estimator {
         self.learn_lever(q_ref, rest, settled, g);
         let (rest, q0) = self.rocking_rest_edge(q_ref, settled, floor, g);
         let Some((q_win, g_win)) = self.window_reference(&st.mean()) else {
+            let r = Err(RejectReason::NotStill);
+            self.report_window(r, Condition::DecelBeforeStop, pitch, st.t_rest_s, emit);
             return;
         };
         // The walk starts from the reference freed of the accelerometer bias, turned by
@@ -631,12 +633,22 @@ impl Estimator {
         }
         // The window's reference, freed of the accelerometer bias (the derotated reference
         // of a short stop already is).
-        let Some((_, g_win)) = self.window_reference(&g_mean) else {
+        let q_win = if settled {
+            self.window_reference(&st.mean()).map(|(q, _)| q)
+        } else {
+            Some(q_ref)
+        };
+        let (Some(q_win), Some((_, g_win))) = (q_win, self.window_reference(&g_mean)) else {
+            let r = Err(RejectReason::NotStill);
+            self.report_window(r, Condition::AccelAfterStop, imu_pitch_rad, t_now, emit);
             return;
         };
-        let (q0, imu_pitch_rad) = match self.window_reference(&st.mean()) {
-            Some((q_win, _)) if settled => (q_win * (q_ref.inverse() * q0), pitch_of(&q_win)),
-            _ => (q0, imu_pitch_rad),
+        // A settled reference is turned to the drive-off by the gyro as the raw one was;
+        // the derotated one already stands there.
+        let (q0, imu_pitch_rad) = if settled {
+            (q_win * (q_ref.inverse() * q0), pitch_of(&q_win))
+        } else {
+            (q0, imu_pitch_rad)
         };
         let setup = self.window_setup(q0, g_win);
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
