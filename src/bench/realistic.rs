@@ -153,13 +153,22 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         .collect();
     for k in 0..=spec.stops {
         let (kind, v_min) = kinds[k];
-        let mut hold = if k > 0 && g.uniform() < r.short_stop_share {
+        // People board while the car is held: the stop of a load change lasts at least
+        // as long as its short kind (`load_stop_short_hold_s`), and the brake is not
+        // released in it (no creep). The draws are made all the same, so the other
+        // stops of the drive stay as they were.
+        let short = k > 0 && g.uniform() < r.short_stop_share;
+        let mut hold = if short && load_stop != Some(k) {
             pick(&mut g, r.short_hold_s)
         } else {
             pick(&mut g, spec.hold_s)
         };
-        if load_stop == Some(k) && g.uniform() < r.load_stop_short_share {
-            hold = pick(&mut g, r.load_stop_short_hold_s);
+        if load_stop == Some(k) {
+            hold = if g.uniform() < r.load_stop_short_share {
+                pick(&mut g, r.load_stop_short_hold_s)
+            } else {
+                hold.max(r.load_stop_short_hold_s[0])
+            };
         }
         let gentle = g.uniform() < r.gentle_start_share;
         let accel = if gentle {
@@ -169,7 +178,8 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         };
         let t_stop = t;
         if kind == StopKind::Full {
-            if k > 0 && g.uniform() < r.creep_share && hold > 4.0 {
+            let creep = k > 0 && g.uniform() < r.creep_share;
+            if creep && hold > 4.0 && load_stop != Some(k) {
                 // Brake released, the car creeps, brake applied again.
                 let peak = pick(&mut g, r.creep_peak_mps);
                 let a = 0.5;
@@ -316,5 +326,58 @@ fn hilly_road(spec: &DriveSpec, r: &RealisticSpec, g: &mut Gauss, length_m: f64)
         grade_deg: knots,
         curves: Vec::new(),
         curve_ramp_m: 0.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::simulate;
+
+    #[test]
+    fn the_stop_of_a_load_change_is_held_long_enough_to_board_and_never_creeps() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenarios/realistic/stop-and-go.toml"
+        ))
+        .unwrap();
+        let mut spec = DriveSpec::parse(&text).unwrap();
+        spec.stops = 6;
+        spec.load_change_at_stop = Some(3);
+        // Every other stop is short or creeps: the load stop must be neither.
+        let r = RealisticSpec {
+            short_stop_share: 1.0,
+            creep_share: 1.0,
+            rolling_stop_share: 0.0,
+            ..RealisticSpec::default()
+        };
+        for seed in 1..=8 {
+            spec.seed = seed;
+            let (sc, plan) = build(&spec, &r, 1);
+            let (k, t_ramp_end) = plan.load_change.expect("5P drives change the load");
+            let (t_stop, t_go, ..) = plan.stops[k];
+            assert!(
+                t_go - t_stop >= r.load_stop_short_hold_s[0],
+                "seed {seed}: {t_stop} {t_go}"
+            );
+            assert!(t_ramp_end - r.load_ramp_s >= t_stop + 0.5, "seed {seed}");
+            let drive = simulate(&sc);
+            // The driver's acceleration ramps in and out over `accel_ramp_s` about the
+            // plan's times; a creep would reach 0.05-0.3 m/s in between.
+            let ramp = sc.vehicle.accel_ramp_s;
+            let moving = drive
+                .truth
+                .iter()
+                .filter(|x| x.t_s > t_stop + ramp && x.t_s < t_go - ramp)
+                .any(|x| x.v_mps > 0.01);
+            assert!(!moving, "seed {seed}: the car moved during its load stop");
+            // The other stops still are short ones (1-2 s held).
+            let short = plan.stops[1..]
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i + 1 != k)
+                .all(|(_, s)| s.1 - s.0 <= r.short_hold_s[1] + 1e-9);
+            assert!(short, "seed {seed}: {:?}", plan.stops);
+        }
     }
 }
