@@ -3,6 +3,11 @@
 use super::config::Averaging;
 use serde::{Deserialize, Serialize};
 
+/// Uncertainty of a load step measured at a standstill, deg: the settled references on
+/// either side agree with the simulated step within a few hundredths, the gyro's turn
+/// over a ramp that ends at drive-off within about 0.1.
+const LOAD_STEP_SD_DEG: f64 = 0.05;
+
 /// Fixed-capacity set of weighted window values for the current load, deg.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Averager {
@@ -98,7 +103,9 @@ impl Averager {
     }
 
     /// Restart from a new load: the previous estimate shifted by `delta_deg` is kept as a
-    /// prior worth at most `prior_weight` windows; older windows are dropped.
+    /// prior worth at most `prior_weight` windows, and no more than its uncertainty
+    /// allows: its standard error and the step's own, `LOAD_STEP_SD_DEG`, against the
+    /// spread of a typical window. Older windows are dropped.
     pub fn restart_shifted(&mut self, delta_deg: f64, prior_weight: f64) {
         let prior = self.combined();
         self.entries.clear();
@@ -106,7 +113,11 @@ impl Averager {
         self.pair_bits = 0;
         self.accepted = 0;
         if let Some(c) = prior {
-            let w = c.weight.min(prior_weight);
+            let var = c.std_err_deg.powi(2) + LOAD_STEP_SD_DEG.powi(2);
+            let w = c
+                .weight
+                .min(prior_weight)
+                .min(self.sigma_prior_deg.powi(2) / var);
             if w > 0.0 {
                 self.push_weighted(c.value_deg + delta_deg, w);
             }
@@ -277,6 +288,22 @@ mod tests {
         assert!((c.value_deg - 1.5).abs() < 1e-12);
         assert_eq!(c.weight, 4.0);
         assert_eq!(a.accepted(), 0);
+    }
+
+    #[test]
+    fn a_restart_keeps_no_more_certainty_than_the_estimate_had() {
+        // Four windows that disagree: the estimate is known to about 0.2 deg only.
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        for x in [0.1, 0.9, -0.3, 0.5] {
+            a.push(x);
+        }
+        let before = a.combined().unwrap();
+        assert!(before.std_err_deg > 0.15, "{before:?}");
+        a.restart_shifted(1.0, 4.0);
+        let after = a.combined().unwrap();
+        assert!((after.value_deg - before.value_deg - 1.0).abs() < 1e-12);
+        assert!(after.weight < 1.0, "{after:?}");
+        assert!(after.std_err_deg > 0.15, "{after:?}");
     }
 
     #[test]
