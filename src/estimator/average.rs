@@ -3,11 +3,6 @@
 use super::config::Averaging;
 use serde::{Deserialize, Serialize};
 
-/// Uncertainty of a load step measured at a standstill, deg: the settled references on
-/// either side agree with the simulated step within a few hundredths, the gyro's turn
-/// over a ramp that ends at drive-off within about 0.1.
-const LOAD_STEP_SD_DEG: f64 = 0.05;
-
 /// Fixed-capacity set of weighted window values for the current load, deg.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Averager {
@@ -102,18 +97,18 @@ impl Averager {
         self.pair_bits <<= 1;
     }
 
-    /// Restart from a new load: the previous estimate shifted by `delta_deg` is kept as a
-    /// prior worth at most `prior_weight` windows, and no more than its uncertainty
-    /// allows: its standard error and the step's own, `LOAD_STEP_SD_DEG`, against the
+    /// Restart from a new load: the previous estimate shifted by `delta_deg` (known to
+    /// `delta_sd_deg`) is kept as a prior worth at most `prior_weight` windows, and no
+    /// more than its uncertainty allows: its standard error and the step's, against the
     /// spread of a typical window. Older windows are dropped.
-    pub fn restart_shifted(&mut self, delta_deg: f64, prior_weight: f64) {
+    pub fn restart_shifted(&mut self, delta_deg: f64, delta_sd_deg: f64, prior_weight: f64) {
         let prior = self.combined();
         self.entries.clear();
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits = 0;
         self.accepted = 0;
         if let Some(c) = prior {
-            let var = c.std_err_deg.powi(2) + LOAD_STEP_SD_DEG.powi(2);
+            let var = c.std_err_deg.powi(2) + delta_sd_deg.powi(2);
             let w = c
                 .weight
                 .min(prior_weight)
@@ -283,7 +278,7 @@ mod tests {
         for _ in 0..10 {
             a.push(0.5);
         }
-        a.restart_shifted(1.0, 4.0);
+        a.restart_shifted(1.0, 0.05, 4.0);
         let c = a.combined().unwrap();
         assert!((c.value_deg - 1.5).abs() < 1e-12);
         assert_eq!(c.weight, 4.0);
@@ -299,7 +294,7 @@ mod tests {
         }
         let before = a.combined().unwrap();
         assert!(before.std_err_deg > 0.15, "{before:?}");
-        a.restart_shifted(1.0, 4.0);
+        a.restart_shifted(1.0, 0.05, 4.0);
         let after = a.combined().unwrap();
         assert!((after.value_deg - before.value_deg - 1.0).abs() < 1e-12);
         assert!(after.weight < 1.0, "{after:?}");
@@ -338,7 +333,7 @@ mod tests {
         a.push(0.6);
         assert!(!a.merge_newest(h, 0.0, 1.0));
         let h = a.push_window(0.5, 1.0);
-        a.restart_shifted(0.3, 4.0);
+        a.restart_shifted(0.3, 0.05, 4.0);
         assert!(!a.merge_newest(h, 0.0, 1.0));
         assert_eq!(a.accepted(), 0);
     }
