@@ -124,6 +124,9 @@ impl Standstill {
 #[derive(Debug, Clone, Copy)]
 pub(super) struct ForwardCtx {
     pub(super) imu_pitch_rad: f64,
+    /// The reference came from a stop that settled (else it was turned by the gyro
+    /// from the samples of a body still rocking).
+    pub(super) reference_settled: bool,
     /// The first wheel reading above the dead zone has been compared with the window's
     /// speed; `Some` holds a mismatch (IMU, wheels, m/s).
     pub(super) speed_checked: bool,
@@ -661,6 +664,7 @@ impl Estimator {
         self.fwd.start(setup, v0);
         self.fwd_ctx = Some(ForwardCtx {
             imu_pitch_rad,
+            reference_settled: settled,
             speed_checked: false,
             speed_mismatch: None,
         });
