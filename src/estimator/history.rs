@@ -90,6 +90,67 @@ impl Estimator {
         self.index_at(t0).max(floor)
     }
 
+    /// `drive_off_start` for a stop too short to settle, where the body still rocks on
+    /// its suspension when the car pulls away. Its pitch swing moves the raw specific
+    /// force by up to 0.1 m/s^2 and its pitch rate by degrees per second, so neither
+    /// says when the car moved. Each sample from the rest edge `floor` on is freed of
+    /// the lever-arm motion and turned by the gyro into the body frame at the rest edge:
+    /// there the force of a car at rest stays on gravity, however the body rocks, and
+    /// departs from it with the car's own acceleration. The reference is the mean over
+    /// `ROCKING_REF_S` after the stop jerk; `n - 1` when the stop is shorter than that.
+    pub(super) fn drive_off_start_rocking(&self, floor: usize) -> usize {
+        const ROCKING_REF_S: f64 = 0.3;
+        let n = self.hist.len();
+        let start = self.index_at(self.hist.get(floor).t_s + 0.1).min(n - 1);
+        let ref_end = self.index_at(self.hist.get(start).t_s + ROCKING_REF_S);
+        if ref_end + REST_AVG >= n {
+            return n - 1;
+        }
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let acc_bias = self.acc_bias_mps2();
+        let tol = self.cfg.rest_acc_tol_mps2;
+        // One pass forward from `start`, the attitude carried by the gyro: first the
+        // reference, then the trailing mean of `REST_AVG` samples against it. Kept are
+        // the newest sample whose mean matches within the tolerance, and within twice it.
+        let mut q = UnitQuaternion::identity();
+        let mut reference = Vector3::zeros();
+        let mut recent = [Vector3::zeros(); REST_AVG];
+        let mut sum = Vector3::zeros();
+        let (mut i_twice, mut i_rest) = (None, None);
+        for j in start..n {
+            if j > start {
+                let (a, b) = (self.hist.get(j - 1), self.hist.get(j));
+                let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
+                q = attitude::propagate(&q, &w, b.t_s - a.t_s);
+            }
+            let f = q * (self.hist.get(j).acc() - acc_bias - self.lever_acc_at(j));
+            let slot = (j - start) % REST_AVG;
+            sum += f - recent[slot];
+            recent[slot] = f;
+            if j < ref_end {
+                reference += f;
+                continue;
+            }
+            if j == ref_end {
+                reference /= (ref_end - start) as f64;
+            }
+            let dev = (sum / REST_AVG as f64 - reference).amax();
+            if dev <= 2.0 * tol {
+                i_twice = Some(j);
+            }
+            if dev <= tol {
+                i_rest = Some(j);
+            }
+        }
+        let Some(i_rest) = i_rest else {
+            return n - 1;
+        };
+        // As in `drive_off_start`: the force ramps in about linearly from the true start.
+        let rise = i_twice.map_or(0, |i2| i2.saturating_sub(i_rest));
+        let t0 = self.hist.get(i_rest.saturating_sub(rise).max(floor)).t_s - DRIVE_OFF_MARGIN_S;
+        self.index_at(t0).max(floor)
+    }
+
     /// Mean specific force of the rest samples from `rest` to `first`, each freed of
     /// `acc_bias_mps2` and of the lever-arm motion and turned by the gyro into the body
     /// frame at `first`: the gravity reference of a window at `first` even while the
@@ -334,5 +395,63 @@ impl Estimator {
             alpha,
             rate(i) - self.bias_rps.unwrap_or_else(Vector3::zeros),
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::estimator::{Estimator, EstimatorConfig, ImuSample};
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    const G: f64 = 9.80665;
+
+    /// A car at rest from t = 0 whose body still rocks from the stop (0.8 deg at
+    /// 1.3 Hz, decaying over 0.5 s, about the default pitch centre), pulling away at
+    /// `drive_off_s` with 0.4 m/s^2 ramped in over 0.5 s. 100 Hz up to `end_s`.
+    fn rocking_stop(drive_off_s: f64, end_s: f64) -> Estimator {
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        est.bias_rps = Some(Vector3::zeros());
+        let arm = Vector3::from(EstimatorConfig::default().lever_arm_m);
+        let (amp, w, tau) = (0.8f64.to_radians(), 2.0 * std::f64::consts::PI * 1.3, 0.5);
+        // Pitch (nose down positive about -y as in the simulator), rate, acceleration.
+        let body = |t: f64| {
+            let e = (-t / tau).exp();
+            let th = amp * e * (w * t).sin();
+            let rate = amp * e * (w * (w * t).cos() - (w * t).sin() / tau);
+            let acc = amp
+                * e
+                * ((1.0 / (tau * tau) - w * w) * (w * t).sin() - 2.0 * w / tau * (w * t).cos());
+            (th, rate, acc)
+        };
+        let mut t = 0.0;
+        while t <= end_s {
+            let (th, rate, alpha) = body(t);
+            let a = 0.4 * ((t - drive_off_s) / 0.5).clamp(0.0, 1.0);
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), th);
+            let omega = Vector3::new(0.0, rate, 0.0);
+            let lever = Vector3::new(0.0, alpha, 0.0).cross(&arm) + omega.cross(&omega.cross(&arm));
+            let f = q.inverse() * Vector3::new(a, 0.0, G) + lever;
+            est.hist
+                .push(ImuSample::new(t, f.into(), [0.0, rate.to_degrees(), 0.0]));
+            t += 0.01;
+        }
+        est
+    }
+
+    #[test]
+    fn the_drive_off_from_a_rocking_body_is_found_where_the_car_moved() {
+        for drive_off_s in [0.9, 1.2, 1.6] {
+            let est = rocking_stop(drive_off_s, drive_off_s + 0.6);
+            let first = est.hist.get(est.drive_off_start_rocking(0)).t_s;
+            assert!(
+                (drive_off_s - 0.2..=drive_off_s + 0.05).contains(&first),
+                "drive-off at {drive_off_s} s found at {first:.2} s"
+            );
+            // Against the raw force of the first rest samples (and the pitch rate), the
+            // rocking puts the drive-off far from where it was.
+            let f0 = est.hist.get(0).acc();
+            let raw = est.hist.get(est.drive_off_start(&f0, 0, false)).t_s;
+            assert!((raw - drive_off_s).abs() > 0.3, "raw {raw:.2} s");
+        }
     }
 }

@@ -582,7 +582,11 @@ impl Estimator {
             }
             _ => g_mean,
         };
-        let mut first = self.drive_off_start(&g_mean, floor, false);
+        let mut first = if settled {
+            self.drive_off_start(&g_mean, floor, false)
+        } else {
+            self.drive_off_start_rocking(floor)
+        };
         // A load still ramping in when the car pulls away: no sample after the turn
         // began is at rest by the pitch rate. Compare the force alone then, unless the
         // turn began with the drive-off (the body squats as it pulls away).
