@@ -210,7 +210,10 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
                 ));
             }
             if load_stop == Some(k) {
-                let t0 = t + pick(&mut g, r.load_change_delay_s).min(hold - 0.5);
+                // Everyone is seated before the car pulls away: the ramp ends at the
+                // drive-off at the latest.
+                let delay = pick(&mut g, r.load_change_delay_s);
+                let t0 = t + delay.min(hold - r.load_ramp_s).max(0.5);
                 plan.load_change = Some((plan.stops.len(), t0 + r.load_ramp_s));
             }
             t += hold;
@@ -361,6 +364,7 @@ mod tests {
                 "seed {seed}: {t_stop} {t_go}"
             );
             assert!(t_ramp_end - r.load_ramp_s >= t_stop + 0.5, "seed {seed}");
+            assert!(t_ramp_end <= t_go, "seed {seed}: boarding after the drive-off");
             let drive = simulate(&sc);
             // The driver's acceleration ramps in and out over `accel_ramp_s` about the
             // plan's times; a creep would reach 0.05-0.3 m/s in between.
