@@ -163,12 +163,17 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         } else {
             pick(&mut g, spec.hold_s)
         };
+        // Everyone is seated before the car pulls away: the stop lasts until the ramp
+        // of its load change, starting `load_change_delay_s` into it, has ended.
+        let mut load_delay = 0.0;
         if load_stop == Some(k) {
             hold = if g.uniform() < r.load_stop_short_share {
                 pick(&mut g, r.load_stop_short_hold_s)
             } else {
                 hold.max(r.load_stop_short_hold_s[0])
             };
+            load_delay = pick(&mut g, r.load_change_delay_s);
+            hold = hold.max(load_delay + r.load_ramp_s);
         }
         let gentle = g.uniform() < r.gentle_start_share;
         let accel = if gentle {
@@ -210,10 +215,7 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
                 ));
             }
             if load_stop == Some(k) {
-                // Everyone is seated before the car pulls away: the ramp ends at the
-                // drive-off at the latest.
-                let delay = pick(&mut g, r.load_change_delay_s);
-                let t0 = t + delay.min(hold - r.load_ramp_s).max(0.5);
+                let t0 = t + load_delay;
                 plan.load_change = Some((plan.stops.len(), t0 + r.load_ramp_s));
             }
             t += hold;
@@ -364,7 +366,10 @@ mod tests {
                 "seed {seed}: {t_stop} {t_go}"
             );
             assert!(t_ramp_end - r.load_ramp_s >= t_stop + 0.5, "seed {seed}");
-            assert!(t_ramp_end <= t_go, "seed {seed}: boarding after the drive-off");
+            assert!(
+                t_ramp_end <= t_go,
+                "seed {seed}: boarding after the drive-off"
+            );
             let drive = simulate(&sc);
             // The driver's acceleration ramps in and out over `accel_ramp_s` about the
             // plan's times; a creep would reach 0.05-0.3 m/s in between.
