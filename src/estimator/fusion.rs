@@ -132,7 +132,9 @@ impl Estimator {
                         self.apply_load_change(delta, new_pitch, t_s, emit);
                     }
                 }
-                let shifted = self.track_shift(r2b.to_degrees());
+                // A window known to be less reliable than a settled one neither starts
+                // nor breaks a run of windows that show a shift.
+                let shifted = weight_share >= 1.0 && self.track_shift(r2b.to_degrees());
                 let weight = if self.cfg.weight_windows {
                     window_weight(g.duration_s) * weight_share
                 } else {
