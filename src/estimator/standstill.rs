@@ -56,6 +56,9 @@ pub(super) const MIN_SETTLED_SAMPLES: u64 = 5;
 pub(super) struct Standstill {
     /// Where the car came to rest (start of the deceleration walk).
     pub(super) t_rest_s: f64,
+    /// Where the braking ended, seen on a body that may still rock (at or before
+    /// `t_rest_s`): the rest of a stop too short to settle starts here.
+    pub(super) t_braked_s: f64,
     /// Specific-force sums of the settled samples of the current load segment.
     pub(super) seg_sum: Vector3<f64>,
     pub(super) seg_n: u64,
@@ -178,6 +181,21 @@ impl Estimator {
                 }
             }
         }
+        // A body still rocking after the stop moves the raw force as much as braking
+        // does, and the IMU turns quiet only once the rocking died down, a second or
+        // more after the car stopped. With the attitude carried by the gyro the end of
+        // the braking shows earlier; never before the wheels last showed motion.
+        let braked = match attitude_from_gravity(&f_rest) {
+            Some(q) => {
+                let g = self.gravity_mps2(&f_rest);
+                let (edge, _) = self.rocking_rest_edge(q, n - 1, first_quiet, g);
+                let wheels = self
+                    .last_wheel_motion
+                    .map_or(0, |(t_w, _)| self.index_at(t_w));
+                rest.min(edge.max(wheels))
+            }
+            None => rest,
+        };
         let moved = self.travelled_m > 0.5;
         let crept = std::mem::take(&mut self.imu_moved);
         let t_track = self.motion_start_s().max(self.hist.get(first_quiet).t_s);
@@ -189,6 +207,7 @@ impl Estimator {
         self.settle_queue.clear();
         self.standstill = Some(Standstill {
             t_rest_s: self.hist.get(rest).t_s,
+            t_braked_s: self.hist.get(braked).t_s,
             seg_sum: Vector3::zeros(),
             seg_n: 0,
             seg_first_s: t_now,
@@ -581,6 +600,13 @@ impl Estimator {
                 q_live.inverse() * (q_seg * g_mean)
             }
             _ => g_mean,
+        };
+        // A stop too short to settle rests from where the braking ended, the body
+        // rocking all the while.
+        let floor = if settled {
+            floor
+        } else {
+            self.index_at(st.t_braked_s)
         };
         let mut first = if settled {
             self.drive_off_start(&g_mean, floor, false)
