@@ -121,6 +121,55 @@ fn gentle_drive_offs_from_stops_too_short_to_settle_give_windows() {
     );
 }
 
+/// Urban seed 104, 5P: the load ramps in 1.9 s into a standstill that began while the
+/// body still rocked, with a 0.16 s gap in the IMU frames. Anchored on the raw mean
+/// force of the rocking body, the motion tracker saw 0.098 m/s and ended the standstill
+/// while the car stood still; the load change was never measured at its stop.
+#[test]
+fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
+    let text = std::fs::read_to_string(format!(
+        "{}/scenarios/realistic/urban.toml",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .unwrap();
+    let mut s = DriveSpec::parse(&text).unwrap();
+    s.seed = 104;
+    let case = &s.cases()[1];
+    let plan = case.plan.as_ref().unwrap();
+    let (k, _) = plan.load_change.unwrap();
+    let (t_stop, t_go, ..) = plan.stops[k];
+    let drive = simulate(&case.scenario);
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    let mut ev = Vec::new();
+    for input in drive.merged() {
+        match input {
+            Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
+            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
+        }
+    }
+    // The standstill of the load stop lasts until the car pulls away.
+    let ended = ev.iter().find_map(|e| match e {
+        Event::StandstillEnded { t_s, .. } if *t_s > t_stop && *t_s < t_go + 2.0 => Some(*t_s),
+        _ => None,
+    });
+    assert!(
+        ended.is_some_and(|t| t >= t_go - 0.1),
+        "standstill ended at {ended:?}, drive-off at {t_go}"
+    );
+    // And the step is measured there.
+    let step = drive.truth_at(t_go + 1.0).load_pitch_deg - drive.truth_at(t_stop).load_pitch_deg;
+    let delta = ev.iter().find_map(|e| match e {
+        Event::LoadChanged { t_s, delta_deg, .. } if *t_s > t_stop && *t_s < t_go + 2.0 => {
+            Some(*delta_deg)
+        }
+        _ => None,
+    });
+    assert!(
+        delta.is_some_and(|d| (d - step).abs() <= 0.1),
+        "load change {delta:?} against a step of {step:.3}"
+    );
+}
+
 #[test]
 fn rolling_stops_give_no_window_and_no_load_change() {
     let r = RealisticSpec {

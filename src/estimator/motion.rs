@@ -159,7 +159,7 @@ impl Estimator {
         // absorbed a sample at a time.
         if self.bias_window_ok
             && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S
-            && let Some(q_now) = attitude_from_gravity(&self.still_mean_acc)
+            && let Some(q_now) = attitude_from_gravity(&self.derotated_still_mean(newest))
             && (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD
         {
             m.q = q_now;
@@ -167,6 +167,31 @@ impl Estimator {
             m.t_anchor_s = m.t_last_s;
         }
         m.speed_mps()
+    }
+
+    /// Mean specific force over the trailing `still_window_s` up to history sample `to`,
+    /// each sample freed of the lever-arm motion and turned by the gyro into the body
+    /// frame at `to`: the gravity the body sees there, even while it still rocks a
+    /// little (the raw mean lags a body turning by its rate times half the window).
+    fn derotated_still_mean(&self, to: usize) -> Vector3<f64> {
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let t_to = self.hist.get(to).t_s;
+        let mut q = UnitQuaternion::identity();
+        let (mut sum, mut k) = (Vector3::zeros(), 0usize);
+        let mut j = to;
+        loop {
+            let x = self.hist.get(j);
+            sum += q * (x.acc() - self.lever_acc_at(j));
+            k += 1;
+            if j == 0 || t_to - self.hist.get(j - 1).t_s > self.cfg.still_window_s {
+                break;
+            }
+            let a = self.hist.get(j - 1);
+            let w = (a.gyro_rps() + x.gyro_rps()) * 0.5 - bias;
+            q = attitude::propagate(&q, &w, a.t_s - x.t_s);
+            j -= 1;
+        }
+        sum / k as f64
     }
 
     /// Time from which a tracker started now integrates: the newest sample it can use.

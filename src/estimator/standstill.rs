@@ -199,7 +199,15 @@ impl Estimator {
         let moved = self.travelled_m > 0.5;
         let crept = std::mem::take(&mut self.imu_moved);
         let t_track = self.motion_start_s().max(self.hist.get(first_quiet).t_s);
-        let motion = MotionTracker::new(&f_rest, t_track, self.gravity_mps2(&f_rest));
+        // The tracker starts from the attitude at `t_track`: the mean force of the last
+        // samples, turned by the gyro into the body frame there, so that a body still
+        // rocking a little does not leave it tilted against the gravity it then sees.
+        let i_track = self.index_at(t_track).min(n - 1);
+        let f_track = self
+            .derotated_reference(self.index_at(t_now - 0.6).min(i_track), i_track)
+            .map(|f| f + self.acc_bias_mps2())
+            .unwrap_or(f_rest);
+        let motion = MotionTracker::new(&f_track, t_track, self.gravity_mps2(&f_rest));
         self.dead_zone_motion = None;
         // From here on the wheels are watched; before, motion may have gone unseen.
         let motion_unknown = self.motion_unknown && !moved;
