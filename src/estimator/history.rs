@@ -162,16 +162,26 @@ impl Estimator {
         if first <= start || self.hist.get(first).t_s - self.hist.get(start).t_s < MIN_REST_S {
             return None;
         }
+        Some(self.derotated_mean(start, first, &self.acc_bias_mps2()))
+    }
+
+    /// Mean specific force of history samples `from..=to`, each freed of `acc_bias` and
+    /// of the lever-arm motion and turned by the gyro into the body frame at `to`.
+    pub(super) fn derotated_mean(
+        &self,
+        from: usize,
+        to: usize,
+        acc_bias: &Vector3<f64>,
+    ) -> Vector3<f64> {
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
-        let acc_bias = self.acc_bias_mps2();
-        // Rotation from the frame at sample j to the frame at `first`.
+        // Rotation from the frame at sample j to the frame at `to`.
         let mut q = UnitQuaternion::identity();
         let (mut sum, mut k) = (Vector3::zeros(), 0usize);
-        let mut j = first;
+        let mut j = to;
         loop {
             sum += q * (self.hist.get(j).acc() - acc_bias - self.lever_acc_at(j));
             k += 1;
-            if j == start {
+            if j <= from {
                 break;
             }
             let (a, b) = (self.hist.get(j - 1), self.hist.get(j));
@@ -179,7 +189,7 @@ impl Estimator {
             q = attitude::propagate(&q, &w, a.t_s - b.t_s);
             j -= 1;
         }
-        Some(sum / k as f64)
+        sum / k as f64
     }
 
     /// Forward speed at history sample `to` (before `rest`) of a car at rest at `rest`

@@ -170,28 +170,13 @@ impl Estimator {
     }
 
     /// Mean specific force over the trailing `still_window_s` up to history sample `to`,
-    /// each sample freed of the lever-arm motion and turned by the gyro into the body
-    /// frame at `to`: the gravity the body sees there, even while it still rocks a
-    /// little (the raw mean lags a body turning by its rate times half the window).
+    /// turned by the gyro into the body frame at `to` (see `derotated_mean`): the
+    /// gravity the body sees there, even while it still rocks a little (the raw mean
+    /// lags a body turning by its rate times half the window).
     fn derotated_still_mean(&self, to: usize) -> Vector3<f64> {
-        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let t_to = self.hist.get(to).t_s;
-        let mut q = UnitQuaternion::identity();
-        let (mut sum, mut k) = (Vector3::zeros(), 0usize);
-        let mut j = to;
-        loop {
-            let x = self.hist.get(j);
-            sum += q * (x.acc() - self.lever_acc_at(j));
-            k += 1;
-            if j == 0 || t_to - self.hist.get(j - 1).t_s > self.cfg.still_window_s {
-                break;
-            }
-            let a = self.hist.get(j - 1);
-            let w = (a.gyro_rps() + x.gyro_rps()) * 0.5 - bias;
-            q = attitude::propagate(&q, &w, a.t_s - x.t_s);
-            j -= 1;
-        }
-        sum / k as f64
+        let from = self.index_at(t_to - self.cfg.still_window_s);
+        self.derotated_mean(from, to, &Vector3::zeros())
     }
 
     /// Time from which a tracker started now integrates: the newest sample it can use.
