@@ -79,8 +79,14 @@ fn gentle_drive_offs_in_the_wheel_dead_zone_give_unbiased_windows() {
     );
     // Before the IMU ended the standstill, drive-off samples joined the reference and
     // these windows sat about +0.2 deg off.
+    assert_unbiased(&errs, 0.25);
+}
+
+/// The mean of `errs` is within three standard errors of zero, for single windows of
+/// `window_rms_deg` spread.
+fn assert_unbiased(errs: &[f64], window_rms_deg: f64) {
     let mean = errs.iter().sum::<f64>() / errs.len() as f64;
-    let bound = 3.0 * 0.25 / (errs.len() as f64).sqrt();
+    let bound = 3.0 * window_rms_deg / (errs.len() as f64).sqrt();
     assert!(
         mean.abs() <= bound,
         "mean window error {mean:+.3} over {} windows, bound {bound:.3}",
@@ -112,13 +118,7 @@ fn gentle_drive_offs_from_stops_too_short_to_settle_give_windows() {
         "{ok} of {n} gentle drive-offs gave a window"
     );
     // Windows of stops that never settled are 0.62 deg rms off (realistic drives).
-    let mean = errs.iter().sum::<f64>() / errs.len() as f64;
-    let bound = 3.0 * 0.62 / (errs.len() as f64).sqrt();
-    assert!(
-        mean.abs() <= bound,
-        "mean window error {mean:+.3} over {} windows, bound {bound:.3}",
-        errs.len()
-    );
+    assert_unbiased(&errs, 0.62);
 }
 
 /// Urban seed 104, 5P: the load ramps in 1.9 s into a standstill that began while the

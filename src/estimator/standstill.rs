@@ -202,6 +202,8 @@ impl Estimator {
         // The tracker starts from the attitude at `t_track`: the mean force of the last
         // samples, turned by the gyro into the body frame there, so that a body still
         // rocking a little does not leave it tilted against the gravity it then sees.
+        // The tracker compares raw samples, so the accelerometer bias the reference
+        // took out goes back in.
         let i_track = self.index_at(t_track).min(n - 1);
         let f_track = self
             .derotated_reference(self.index_at(t_now - 0.6).min(i_track), i_track)
