@@ -3,9 +3,11 @@
 //!
 //! Frames carry their kernel receive time (SO_TIMESTAMPNS), taken onto the monotonic
 //! pipeline clock by [`MonoClock`]. When the bus is silent a 10 ms timer lets time
-//! pass from the same clock, 20 ms behind, so that frames already stamped but not yet
-//! read are handled first. Interfaces that vanish are reopened with backoff, with the
-//! timer running meanwhile; sends never block.
+//! pass from the same clock, 20 ms behind. Frames already queued in the sockets are
+//! always read before the timer is served: a daemon that was not scheduled for a while
+//! (a loaded ECU, SIGSTOP) finds its inputs waiting, stamped when they came, and must
+//! not declare them lost first. Interfaces that vanish are reopened with backoff, with
+//! the timer running meanwhile; sends never block.
 
 use super::clock::MonoClock;
 use super::config::Config;
@@ -21,6 +23,7 @@ use socketcan::{CanFilter, CanFrame, SocketOptions};
 use std::cell::Cell;
 use std::pin::Pin;
 use std::rc::Rc;
+use std::task::Poll;
 use std::time::{Duration, SystemTime};
 use tokio::time::Instant;
 
@@ -28,6 +31,9 @@ use tokio::time::Instant;
 const HOLD_BACK_S: f64 = 0.02;
 /// Idle timer period.
 const TICK: Duration = Duration::from_millis(10);
+/// Frames read in a row before a due timer goes first: housekeeping (watchdog, status)
+/// still runs under a flood of the input IDs.
+const MAX_FRAMES_BEFORE_TICK: u32 = 1000;
 const FIRST_BACKOFF: Duration = Duration::from_millis(100);
 const MAX_BACKOFF: Duration = Duration::from_secs(5);
 
@@ -110,6 +116,10 @@ pub struct LiveBus {
     /// Receive only: LEVELING frames are neither sent nor counted (calibration).
     read_only: bool,
     stats: SharedStats,
+    /// Frames returned since the timer was last served.
+    frames_since_tick: u32,
+    /// The timer fired and is served once no frame is waiting.
+    tick_due: bool,
 }
 
 impl LiveBus {
@@ -130,6 +140,8 @@ impl LiveBus {
             output_failed: false,
             read_only: false,
             stats,
+            frames_since_tick: 0,
+            tick_due: false,
         }
     }
 
@@ -153,6 +165,8 @@ impl LiveBus {
     }
 
     fn idle_tick(&mut self) -> Received {
+        self.frames_since_tick = 0;
+        self.tick_due = false;
         let now = self.clock.now_s();
         let steps = self.clock.steps;
         self.count(|s| s.wall_clock_steps = steps);
@@ -199,6 +213,22 @@ impl LiveBus {
         }))
     }
 
+    /// One item of the input streams: a frame to hand on, a lost link, or `None` for a
+    /// frame that is not passed on.
+    fn item(
+        &mut self,
+        item: Option<(usize, std::io::Result<(CanFrame, SystemTime)>)>,
+    ) -> Option<Received> {
+        match item {
+            None => Some(self.lost("no input stream".into())),
+            Some((_, Err(e))) => Some(self.lost(format!("read failed: {e}"))),
+            Some((source, Ok((frame, stamp)))) => {
+                self.frames_since_tick = self.frames_since_tick.saturating_add(1);
+                self.frame(source, frame, stamp)
+            }
+        }
+    }
+
     async fn next(&mut self) -> Received {
         loop {
             if self.output_failed {
@@ -220,19 +250,52 @@ impl LiveBus {
                     }
                 }
             }
+            if self.frames_since_tick >= MAX_FRAMES_BEFORE_TICK && !self.tick_due {
+                // Frames keep coming: look at the timer before the next one.
+                let tick = &mut self.tick;
+                self.tick_due =
+                    std::future::poll_fn(|cx| Poll::Ready(tick.poll_tick(cx).is_ready())).await;
+            }
             match self.open.as_mut() {
-                Some(open) => {
-                    tokio::select! {
-                        item = open.frames.next() => match item {
-                            None => return self.lost("no input stream".into()),
-                            Some((_, Err(e))) => return self.lost(format!("read failed: {e}")),
-                            Some((source, Ok((frame, stamp)))) => {
-                                if let Some(r) = self.frame(source, frame, stamp) {
-                                    return r;
-                                }
+                Some(open) if self.tick_due => {
+                    // The timer fired. Frames that came meanwhile are stamped earlier
+                    // than the tick's time and go first, unless a flood of them has
+                    // held the timer back long enough.
+                    let item = if self.frames_since_tick < MAX_FRAMES_BEFORE_TICK {
+                        tokio::select! {
+                            biased;
+                            item = open.frames.next() => Some(item),
+                            _ = std::future::ready(()) => None,
+                        }
+                    } else {
+                        None
+                    };
+                    match item {
+                        Some(item) => {
+                            if let Some(r) = self.item(item) {
+                                return r;
                             }
-                        },
-                        _ = self.tick.tick() => return self.idle_tick(),
+                        }
+                        None => return self.idle_tick(),
+                    }
+                }
+                Some(open) => {
+                    let item = tokio::select! {
+                        biased;
+                        item = open.frames.next() => item,
+                        _ = self.tick.tick() => {
+                            self.tick_due = true;
+                            // A process resumed after SIGSTOP (or not scheduled for a
+                            // while) can have its timer expire before the runtime has
+                            // seen the sockets turn readable: epoll_wait returns EINTR
+                            // without events after SIGCONT. Yielding lets the runtime
+                            // poll for I/O before the tick is served.
+                            tokio::task::yield_now().await;
+                            continue;
+                        }
+                    };
+                    if let Some(r) = self.item(item) {
+                        return r;
                     }
                 }
                 None => {
