@@ -8,6 +8,18 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// Half-width of the gyro smoothing behind the lever-arm acceleration, samples:
 /// `lever_acc_at(i)` needs twice this many samples after `i`.
 pub(super) const LEVER_SMOOTH_HALF: usize = 5;
+/// The walk back to the rest edge steps over a knock at rest (a door shut, someone
+/// sitting down): a disturbance of the longitudinal force no longer than this, s,
+const KNOCK_MAX_S: f64 = 0.6;
+/// that leaves the IMU with no more velocity than this, m/s (a knock leaves the body
+/// where it was; what the integral keeps is the lever-arm model's smoothing of a
+/// 5-8 Hz swing),
+const KNOCK_MAX_DV_MPS: f64 = 0.05;
+/// and never more than this on the way, m/s: braking gains that within 0.1 s at
+/// 1 m/s^2, and never comes back to rest. A knock ends once this many samples in a row
+/// are back at rest (its oscillation crosses rest between swings).
+const KNOCK_PEAK_DV_MPS: f64 = 0.1;
+const KNOCK_QUIET_SAMPLES: usize = 10;
 
 /// Samples averaged where a walk looks for the car at rest (noise of one sample is
 /// about 0.03 m/s^2; five keep a single outlier from ending the rest).
@@ -237,8 +249,12 @@ impl Estimator {
     /// Where the car came to rest, found walking back from the settled sample `from`
     /// with the attitude carried by the gyro: a body rocking on its suspension at rest
     /// only tilts gravity along x (its lever-arm acceleration is mostly vertical),
-    /// while braking shows fully in x. Returns the edge and the attitude there. The
-    /// search goes back at most 2 s before `floor`, the first quiet sample.
+    /// while braking shows fully in x. A knock between the stop and the settled samples
+    /// (a door, someone sitting down: a swing the lever-arm model does not fully
+    /// explain) is stepped over when it dies out within `KNOCK_MAX_S` and leaves no
+    /// speed; braking never returns to rest and gains speed. Returns the edge and the
+    /// attitude there. The search goes back at most 2 s before `floor`, the first quiet
+    /// sample.
     pub(super) fn rocking_rest_edge(
         &self,
         q_ref: UnitQuaternion<f64>,
@@ -254,25 +270,54 @@ impl Estimator {
         let mut q = q_ref;
         let mut res = [0.0f64; AVG];
         let (mut edge, mut q_edge) = (from, q_ref);
+        // A knock open on the walk: (time it began, velocity change across it so far,
+        // samples in a row back at rest).
+        let mut knock: Option<(f64, f64, usize)> = None;
         let mut i = from;
         let mut k = 0usize;
         loop {
             let x = self.hist.get(i);
             // The IMU rides the rocking body at the lever arm: remove that acceleration.
             let lever_acc = self.lever_acc_at(i);
-            res[k % AVG] = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
+            let r = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
+            res[k % AVG] = r;
             k += 1;
+            if let Some((_, dv, _)) = knock.as_mut()
+                && i + 1 < self.hist.len()
+            {
+                *dv += r * (self.hist.get(i + 1).t_s - x.t_s);
+            }
             if k >= AVG {
-                if (res.iter().sum::<f64>() / AVG as f64).abs() > tol {
-                    break;
+                let disturbed = (res.iter().sum::<f64>() / AVG as f64).abs() > tol;
+                knock = match (disturbed, knock) {
+                    (true, None) => Some((x.t_s, 0.0, 0)),
+                    (true, Some((t0, dv, _))) => {
+                        // Braking goes on and gains speed; a knock does neither.
+                        if t0 - x.t_s > KNOCK_MAX_S || dv.abs() > KNOCK_PEAK_DV_MPS {
+                            break;
+                        }
+                        Some((t0, dv, 0))
+                    }
+                    (false, Some((t0, dv, quiet))) if quiet + 1 < KNOCK_QUIET_SAMPLES => {
+                        Some((t0, dv, quiet + 1))
+                    }
+                    (false, Some((_, dv, _))) => {
+                        if dv.abs() > KNOCK_MAX_DV_MPS {
+                            break;
+                        }
+                        None
+                    }
+                    (false, None) => None,
+                };
+                if knock.is_none() {
+                    // The window's oldest sample is the edge: the first one at rest. Four
+                    // samples later the body already rebounds from its dive at 0.02-0.05
+                    // rad/s, and the walk's start velocity omega x lever arm leans on the
+                    // learnt arm, which comes out about 1 % short. A braking sample inside
+                    // the window would have failed the test above.
+                    edge = i;
+                    q_edge = q;
                 }
-                // The window's oldest sample is the edge: the first one at rest. Four
-                // samples later the body already rebounds from its dive at 0.02-0.05
-                // rad/s, and the walk's start velocity omega x lever arm leans on the
-                // learnt arm, which comes out about 1 % short. A braking sample inside
-                // the window would have failed the test above.
-                edge = i;
-                q_edge = q;
             }
             if i == 0 || i <= lowest {
                 break;
@@ -463,5 +508,61 @@ mod tests {
             let raw = est.hist.get(est.drive_off_start(&f0, 0, false)).t_s;
             assert!((raw - drive_off_s).abs() > 0.3, "raw {raw:.2} s");
         }
+    }
+
+    /// A car braking at 1.5 m/s^2 comes to rest at `stop_s`; at `knock_s` a door is
+    /// shut: the body swings 0.2 deg at 6 Hz, decaying in 0.1 s, and the structure adds
+    /// 0.5 m/s^2 along x that the lever arm does not explain. 100 Hz up to 4 s.
+    fn knocked_stop(stop_s: f64, knock_s: f64) -> Estimator {
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        est.bias_rps = Some(Vector3::zeros());
+        let arm = Vector3::from(EstimatorConfig::default().lever_arm_m);
+        let (amp, w, tau) = (0.2f64.to_radians(), 2.0 * std::f64::consts::PI * 6.0, 0.1);
+        let mut t = 0.0;
+        while t <= 4.0 {
+            let x = t - knock_s;
+            let (th, rate, alpha, extra) = if x < 0.0 {
+                (0.0, 0.0, 0.0, 0.0)
+            } else {
+                let e = (-x / tau).exp();
+                let (s, c) = ((w * x).sin(), (w * x).cos());
+                (
+                    amp * e * s,
+                    amp * e * (w * c - s / tau),
+                    amp * e * ((1.0 / (tau * tau) - w * w) * s - 2.0 * w / tau * c),
+                    0.5 * e * c,
+                )
+            };
+            let a = if t < stop_s { -1.5 } else { 0.0 };
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), th);
+            let omega = Vector3::new(0.0, rate, 0.0);
+            let lever = Vector3::new(0.0, alpha, 0.0).cross(&arm) + omega.cross(&omega.cross(&arm));
+            let f = q.inverse() * Vector3::new(a, 0.0, G) + lever + Vector3::new(extra, 0.0, 0.0);
+            est.hist
+                .push(ImuSample::new(t, f.into(), [0.0, rate.to_degrees(), 0.0]));
+            t += 0.01;
+        }
+        est
+    }
+
+    #[test]
+    fn the_walk_back_to_the_rest_edge_steps_over_a_knock_but_not_into_braking() {
+        for knock_s in [1.3, 1.8, 2.5] {
+            let est = knocked_stop(1.0, knock_s);
+            let (from, floor) = (est.index_at(3.5), est.index_at(2.9));
+            let (edge, _) = est.rocking_rest_edge(UnitQuaternion::identity(), from, floor, G);
+            let t = est.hist.get(edge).t_s;
+            assert!(
+                (0.99..=1.04).contains(&t),
+                "knock at {knock_s} s: rest edge at {t:.2} s, the car stopped at 1.00 s"
+            );
+        }
+        // The same knock while the car still brakes: the walk stops where the braking
+        // ended, not inside it.
+        let est = knocked_stop(1.6, 1.3);
+        let (from, floor) = (est.index_at(3.5), est.index_at(2.9));
+        let (edge, _) = est.rocking_rest_edge(UnitQuaternion::identity(), from, floor, G);
+        let t = est.hist.get(edge).t_s;
+        assert!(t >= 1.59, "rest edge at {t:.2} s inside the braking");
     }
 }
