@@ -86,6 +86,12 @@ fn config_mistakes_name_the_file_and_field() {
     ));
     assert!(e.contains("gyro_bias_alpha"), "{e}");
     let e = err_of(load_variant(
+        "share",
+        &(reference_toml() + "short_stop_weight = 0.0\n"),
+        None,
+    ));
+    assert!(e.contains("short_stop_weight"), "{e}");
+    let e = err_of(load_variant(
         "act",
         &reference_toml().replace("actuator_min_deg = -3.0", "actuator_min_deg = 5.0"),
         None,

@@ -79,6 +79,18 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         pair_stop_windows: false,
         ..d()
     };
+    let no_short_stops = EstimatorConfig {
+        short_stop_windows: false,
+        ..d()
+    };
+    let short_full_weight = EstimatorConfig {
+        short_stop_weight: 1.0,
+        ..d()
+    };
+    let raw_anchor = EstimatorConfig {
+        derotated_motion_anchor: false,
+        ..d()
+    };
     let no_imu_drive_off = EstimatorConfig {
         drive_off_speed_mps: 1e3,
         ..d()
@@ -97,6 +109,8 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         drive_off_speed_mps: 1e3,
         live_standstill_pitch: false,
         pair_stop_windows: false,
+        short_stop_windows: false,
+        derotated_motion_anchor: false,
         ..d()
     };
     vec![
@@ -119,6 +133,9 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_imu_drive_off, "no-imu-drive-off")),
         Box::new(Leveld::new(no_live_pitch, "no-live-standstill-pitch")),
         Box::new(Leveld::new(no_pairs, "no-stop-pairs")),
+        Box::new(Leveld::new(no_short_stops, "no-short-stop-windows")),
+        Box::new(Leveld::new(short_full_weight, "short-stops-full-weight")),
+        Box::new(Leveld::new(raw_anchor, "raw-motion-anchor")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

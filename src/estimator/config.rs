@@ -100,6 +100,21 @@ pub struct EstimatorConfig {
     /// average as one entry. Both start from the same standstill reference, and an
     /// error in it (a door shock on a short stop) moves them in opposite directions.
     pub pair_stop_windows: bool,
+    /// A stop too short for the body to settle (a stop sign, a queue) gives an
+    /// acceleration window: the drive-off is found on the rocking body, and the
+    /// reference is the rest samples turned by the gyro into the body frame at the
+    /// drive-off. Off: such stops give no window.
+    pub short_stop_windows: bool,
+    /// Weight of a window from a stop too short to settle, as a share of a settled
+    /// window of the same length: the rest samples still carry the heave of the body,
+    /// and the window starts with the body's unknown vertical speed. Over 64 realistic
+    /// drives (8 seeds of each scenario and load) the forward windows of such stops were
+    /// 0.62 deg rms off, those of settled stops 0.33: (0.33 / 0.62)^2.
+    pub short_stop_weight: f64,
+    /// The motion tracker that ends a standstill in the wheels' dead zone stands on the
+    /// mean force turned by the gyro into the body frame at its own sample, not on the
+    /// raw mean, which lags a body still rocking by its rate times half the window.
+    pub derotated_motion_anchor: bool,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -143,6 +158,9 @@ impl Default for EstimatorConfig {
             weight_windows: true,
             live_standstill_pitch: true,
             pair_stop_windows: true,
+            short_stop_windows: true,
+            short_stop_weight: 0.28,
+            derotated_motion_anchor: true,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,
@@ -229,6 +247,13 @@ impl EstimatorConfig {
                 field: "history_s",
                 value: self.history_s,
                 hint: "keep at least max_window_time_s + 2 s of history for the deceleration window",
+            });
+        }
+        if !(self.short_stop_weight > 0.0 && self.short_stop_weight <= 1.0) {
+            return Err(ConfigError {
+                field: "short_stop_weight",
+                value: self.short_stop_weight,
+                hint: "choose a share in (0, 1] of a settled window's weight; 0.28 is measured",
             });
         }
         if !(self.gyro_bias_alpha > 0.0 && self.gyro_bias_alpha <= 1.0) {

@@ -67,7 +67,7 @@ impl Estimator {
         let share = if ctx.reference_settled {
             1.0
         } else {
-            UNSETTLED_REFERENCE_SHARE
+            self.cfg.short_stop_weight
         };
         self.report_window_weighted(
             r,
@@ -209,14 +209,6 @@ impl Estimator {
 /// paper's grid at 300 ug/sqrt(Hz): about 0.12 deg for a 2 s window, 0.2 deg at 1 m/s^2.
 const WINDOW_VAR_FIXED_DEG2: f64 = 0.05 * 0.05;
 const WINDOW_VAR_PER_S3_DEG2: f64 = 0.0015;
-/// Share of the weight of a window whose reference comes from a stop too short for the
-/// body to settle, against a settled one of the same length: the rest samples, turned
-/// by the gyro, still carry the heave of the body, and the window starts with the
-/// body's unknown vertical speed. Over 64 realistic drives (8 seeds of each scenario
-/// and load) the forward windows of such stops were 0.62 deg rms off, those of settled
-/// stops 0.33: (0.33 / 0.62)^2.
-pub(super) const UNSETTLED_REFERENCE_SHARE: f64 = 0.28;
-
 /// The typical window that weighs 1, s.
 const WINDOW_REF_S: f64 = 2.0;
 

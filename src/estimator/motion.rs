@@ -159,7 +159,11 @@ impl Estimator {
         // absorbed a sample at a time.
         if self.bias_window_ok
             && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S
-            && let Some(q_now) = attitude_from_gravity(&self.derotated_still_mean(newest))
+            && let Some(q_now) = attitude_from_gravity(&if self.cfg.derotated_motion_anchor {
+                self.derotated_still_mean(newest)
+            } else {
+                self.still_mean_acc
+            })
             && (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD
         {
             m.q = q_now;

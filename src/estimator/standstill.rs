@@ -205,10 +205,12 @@ impl Estimator {
         // The tracker compares raw samples, so the accelerometer bias the reference
         // took out goes back in.
         let i_track = self.index_at(t_track).min(n - 1);
-        let f_track = self
-            .derotated_reference(self.index_at(t_now - 0.6).min(i_track), i_track)
-            .map(|f| f + self.acc_bias_mps2())
-            .unwrap_or(f_rest);
+        let derotated = if self.cfg.derotated_motion_anchor {
+            self.derotated_reference(self.index_at(t_now - 0.6).min(i_track), i_track)
+        } else {
+            None
+        };
+        let f_track = derotated.map_or(f_rest, |f| f + self.acc_bias_mps2());
         let motion = MotionTracker::new(&f_track, t_track, self.gravity_mps2(&f_rest));
         self.dead_zone_motion = None;
         // From here on the wheels are watched; before, motion may have gone unseen.
@@ -638,13 +640,15 @@ impl Estimator {
                     self.carry(q, self.index_at(st.seg_last_s).min(n - 1), first),
                 )
             })
-        } else {
+        } else if self.cfg.short_stop_windows {
             // A stop too short to settle (a stop sign, a queue): its rest samples,
             // turned by the gyro into the body frame at drive-off, give the reference
             // there although the body still rocked.
             self.derotated_reference(floor, first)
                 .and_then(|f| attitude_from_gravity(&f))
                 .map(|q| (q, q))
+        } else {
+            None
         };
         let Some((q_ref, q0)) = q_ref else {
             if st.moved {
