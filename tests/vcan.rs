@@ -751,6 +751,35 @@ fn play_monotonic(frames: &[LogFrame]) -> u64 {
     stalls
 }
 
+/// LEVELING frames sent while the inputs flowed, in capture order (after a wall-clock
+/// step the stamps jump), the first five left out.
+fn outputs_while_inputs_flow(all: &[LogFrame]) -> Vec<LogFrame> {
+    let first_in = all.iter().position(|f| f.id != 0x3E8).unwrap();
+    let last_in = all.iter().rposition(|f| f.id != 0x3E8).unwrap();
+    all[first_in..=last_in]
+        .iter()
+        .filter(|f| f.id == 0x3E8)
+        .skip(5)
+        .copied()
+        .collect()
+}
+
+/// Every input was lost at most before the first frame, after the last and at each
+/// stall of the test's own feed, and no frame failed its alive counter.
+fn assert_inputs_lost_only_at_the_ends(s: &serde_json::Value, stalls: u64) {
+    for m in ["WHL_SPD11", "IMU_ACC", "IMU_GYR"] {
+        assert!(
+            s["messages"][m]["timeouts"].as_u64() <= Some(2 + stalls),
+            "{m}: {s}"
+        );
+        assert_eq!(
+            s["messages"][m]["counter_errors"].as_u64(),
+            Some(0),
+            "{m}: {s}"
+        );
+    }
+}
+
 /// Set the wall clock `delta_s` away from where it is (root, in the VM).
 fn step_wall_clock(delta_s: i64) {
     let now = std::time::SystemTime::now()
@@ -787,33 +816,14 @@ fn t8_a_wall_clock_step_changes_neither_the_period_nor_the_estimate() {
     eprintln!("feed stalls: {stalls}");
     stepper.join().unwrap();
     let all: Vec<LogFrame> = capture.stop();
-    // Output frames while the inputs flow, in capture order (the stamps jump).
-    let first_in = all.iter().position(|f| f.id != 0x3E8).unwrap();
-    let last_in = all.iter().rposition(|f| f.id != 0x3E8).unwrap();
-    let out_frames: Vec<LogFrame> = all[first_in..=last_in]
-        .iter()
-        .filter(|f| f.id == 0x3E8)
-        .skip(5)
-        .copied()
-        .collect();
+    let out_frames = outputs_while_inputs_flow(&all);
     let (code, text) = d.term();
     assert_eq!(code, 0, "{text}");
     let s = Leveld::final_stats(&text);
     assert_eq!(s["wall_clock_steps"].as_u64(), Some(2), "{s}");
-    for m in ["WHL_SPD11", "IMU_ACC", "IMU_GYR"] {
-        // Inputs are lost before the first frame and after the last; a clock step
-        // must not add a third loss (the statuses below check the same while the
-        // frames flow), only a stall of the feed may.
-        assert!(
-            s["messages"][m]["timeouts"].as_u64() <= Some(2 + stalls),
-            "{m}: {s}"
-        );
-        assert_eq!(
-            s["messages"][m]["counter_errors"].as_u64(),
-            Some(0),
-            "{m}: {s}"
-        );
-    }
+    // A clock step must not add a loss (the statuses below check the same while the
+    // frames flow).
+    assert_inputs_lost_only_at_the_ends(&s, stalls);
     // candump stamps with the wall clock: split its record at the steps and check
     // the period of each part.
     let mut parts: Vec<Vec<LogFrame>> = vec![Vec::new()];
@@ -879,35 +889,18 @@ fn t9_a_daemon_not_scheduled_for_a_while_finds_its_inputs_waiting_not_lost() {
     let (code, text) = d.term();
     assert_eq!(code, 0, "{text}");
     let s = Leveld::final_stats(&text);
-    for m in ["WHL_SPD11", "IMU_ACC", "IMU_GYR"] {
-        // Lost before the first frame and after the last, and at a stall of the feed.
-        assert!(
-            s["messages"][m]["timeouts"].as_u64() <= Some(2 + stalls),
-            "{m}: {s}"
-        );
+    assert_inputs_lost_only_at_the_ends(&s, stalls);
+    for (m, id) in [("WHL_SPD11", 0x386), ("IMU_ACC", 0x3E0), ("IMU_GYR", 0x3E1)] {
+        let sent = frames.iter().filter(|f| f.id == id).count() as u64;
         assert_eq!(
             s["messages"][m]["frames"].as_u64(),
-            Some(
-                frames
-                    .iter()
-                    .filter(|f| f.id
-                        == match m {
-                            "WHL_SPD11" => 0x386,
-                            "IMU_ACC" => 0x3E0,
-                            _ => 0x3E1,
-                        })
-                    .count() as u64
-            ),
+            Some(sent),
             "{m}: every frame read, none lost in the socket: {s}"
         );
     }
-    let first_in = all.iter().position(|f| f.id != 0x3E8).unwrap();
-    let last_in = all.iter().rposition(|f| f.id != 0x3E8).unwrap();
     let out = output_codec();
-    let statuses: Vec<Status> = all[first_in..=last_in]
+    let statuses: Vec<Status> = outputs_while_inputs_flow(&all)
         .iter()
-        .filter(|f| f.id == 0x3E8)
-        .skip(5)
         .map(|f| status(&decode(&out, f)))
         .collect();
     assert!(statuses.len() > 100, "{} LEVELING frames", statuses.len());
