@@ -460,34 +460,44 @@ mod tests {
 
     const G: f64 = 9.80665;
 
+    /// A decaying swing of the body about the pitch centre, `x` s after it began: pitch
+    /// (nose down positive about -y as in the simulator), rate and acceleration.
+    fn swing(amp_deg: f64, freq_hz: f64, tau_s: f64, x: f64) -> (f64, f64, f64) {
+        if x < 0.0 {
+            return (0.0, 0.0, 0.0);
+        }
+        let (amp, w) = (amp_deg.to_radians(), 2.0 * std::f64::consts::PI * freq_hz);
+        let e = (-x / tau_s).exp();
+        let (s, c) = ((w * x).sin(), (w * x).cos());
+        (
+            amp * e * s,
+            amp * e * (w * c - s / tau_s),
+            amp * e * ((1.0 / (tau_s * tau_s) - w * w) * s - 2.0 * w / tau_s * c),
+        )
+    }
+
+    /// The IMU sample at the default lever arm of a body pitched `th` (rate, angular
+    /// acceleration) on a car accelerating at `a`, plus `extra` along x.
+    fn swung_sample(t: f64, (th, rate, alpha): (f64, f64, f64), a: f64, extra: f64) -> ImuSample {
+        let arm = Vector3::from(EstimatorConfig::default().lever_arm_m);
+        let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), th);
+        let omega = Vector3::new(0.0, rate, 0.0);
+        let lever = Vector3::new(0.0, alpha, 0.0).cross(&arm) + omega.cross(&omega.cross(&arm));
+        let f = q.inverse() * Vector3::new(a, 0.0, G) + lever + Vector3::new(extra, 0.0, 0.0);
+        ImuSample::new(t, f.into(), [0.0, rate.to_degrees(), 0.0])
+    }
+
     /// A car at rest from t = 0 whose body still rocks from the stop (0.8 deg at
     /// 1.3 Hz, decaying over 0.5 s, about the default pitch centre), pulling away at
     /// `drive_off_s` with 0.4 m/s^2 ramped in over 0.5 s. 100 Hz up to `end_s`.
     fn rocking_stop(drive_off_s: f64, end_s: f64) -> Estimator {
         let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
         est.bias_rps = Some(Vector3::zeros());
-        let arm = Vector3::from(EstimatorConfig::default().lever_arm_m);
-        let (amp, w, tau) = (0.8f64.to_radians(), 2.0 * std::f64::consts::PI * 1.3, 0.5);
-        // Pitch (nose down positive about -y as in the simulator), rate, acceleration.
-        let body = |t: f64| {
-            let e = (-t / tau).exp();
-            let th = amp * e * (w * t).sin();
-            let rate = amp * e * (w * (w * t).cos() - (w * t).sin() / tau);
-            let acc = amp
-                * e
-                * ((1.0 / (tau * tau) - w * w) * (w * t).sin() - 2.0 * w / tau * (w * t).cos());
-            (th, rate, acc)
-        };
         let mut t = 0.0;
         while t <= end_s {
-            let (th, rate, alpha) = body(t);
             let a = 0.4 * ((t - drive_off_s) / 0.5).clamp(0.0, 1.0);
-            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), th);
-            let omega = Vector3::new(0.0, rate, 0.0);
-            let lever = Vector3::new(0.0, alpha, 0.0).cross(&arm) + omega.cross(&omega.cross(&arm));
-            let f = q.inverse() * Vector3::new(a, 0.0, G) + lever;
             est.hist
-                .push(ImuSample::new(t, f.into(), [0.0, rate.to_degrees(), 0.0]));
+                .push(swung_sample(t, swing(0.8, 1.3, 0.5, t), a, 0.0));
             t += 0.01;
         }
         est
@@ -516,30 +526,17 @@ mod tests {
     fn knocked_stop(stop_s: f64, knock_s: f64) -> Estimator {
         let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
         est.bias_rps = Some(Vector3::zeros());
-        let arm = Vector3::from(EstimatorConfig::default().lever_arm_m);
-        let (amp, w, tau) = (0.2f64.to_radians(), 2.0 * std::f64::consts::PI * 6.0, 0.1);
         let mut t = 0.0;
         while t <= 4.0 {
             let x = t - knock_s;
-            let (th, rate, alpha, extra) = if x < 0.0 {
-                (0.0, 0.0, 0.0, 0.0)
+            let extra = if x < 0.0 {
+                0.0
             } else {
-                let e = (-x / tau).exp();
-                let (s, c) = ((w * x).sin(), (w * x).cos());
-                (
-                    amp * e * s,
-                    amp * e * (w * c - s / tau),
-                    amp * e * ((1.0 / (tau * tau) - w * w) * s - 2.0 * w / tau * c),
-                    0.5 * e * c,
-                )
+                0.5 * (-x / 0.1).exp() * (2.0 * std::f64::consts::PI * 6.0 * x).cos()
             };
             let a = if t < stop_s { -1.5 } else { 0.0 };
-            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), th);
-            let omega = Vector3::new(0.0, rate, 0.0);
-            let lever = Vector3::new(0.0, alpha, 0.0).cross(&arm) + omega.cross(&omega.cross(&arm));
-            let f = q.inverse() * Vector3::new(a, 0.0, G) + lever + Vector3::new(extra, 0.0, 0.0);
             est.hist
-                .push(ImuSample::new(t, f.into(), [0.0, rate.to_degrees(), 0.0]));
+                .push(swung_sample(t, swing(0.2, 6.0, 0.1, x), a, extra));
             t += 0.01;
         }
         est
