@@ -159,11 +159,7 @@ impl Estimator {
         // absorbed a sample at a time.
         if self.bias_window_ok
             && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S
-            && let Some(q_now) = attitude_from_gravity(&if self.cfg.derotated_motion_anchor {
-                self.derotated_still_mean(newest)
-            } else {
-                self.still_mean_acc
-            })
+            && let Some(q_now) = attitude_from_gravity(&self.anchor_mean(newest))
             && (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD
         {
             m.q = q_now;
@@ -173,11 +169,16 @@ impl Estimator {
         m.speed_mps()
     }
 
-    /// Mean specific force over the trailing `still_window_s` up to history sample `to`,
-    /// turned by the gyro into the body frame at `to` (see `derotated_mean`): the
-    /// gravity the body sees there, even while it still rocks a little (the raw mean
-    /// lags a body turning by its rate times half the window).
-    fn derotated_still_mean(&self, to: usize) -> Vector3<f64> {
+    /// The gravity a re-anchored tracker stands on: the mean specific force over the
+    /// trailing `still_window_s` up to history sample `to`, turned by the gyro into the
+    /// body frame at `to` (see `derotated_mean`), so that it is the gravity the body
+    /// sees there even while it still rocks a little (the raw mean lags a body turning
+    /// by its rate times half the window). With `derotated_motion_anchor` off, the raw
+    /// mean of the last stillness window.
+    fn anchor_mean(&self, to: usize) -> Vector3<f64> {
+        if !self.cfg.derotated_motion_anchor {
+            return self.still_mean_acc;
+        }
         let t_to = self.hist.get(to).t_s;
         let from = self.index_at(t_to - self.cfg.still_window_s);
         self.derotated_mean(from, to, &Vector3::zeros())
