@@ -780,6 +780,20 @@ fn assert_inputs_lost_only_at_the_ends(s: &serde_json::Value, stalls: u64) {
     }
 }
 
+/// Separate stretches of HOLD_INPUT_LOST in a sequence of statuses: each stall of the
+/// test's own feed may cause one, nothing else may.
+fn hold_episodes(statuses: &[Status]) -> u64 {
+    let mut n = 0;
+    let mut prev = None;
+    for &st in statuses {
+        if st == Status::HoldInputLost && prev != Some(Status::HoldInputLost) {
+            n += 1;
+        }
+        prev = Some(st);
+    }
+    n
+}
+
 /// Set the wall clock `delta_s` away from where it is (root, in the VM).
 fn step_wall_clock(delta_s: i64) {
     let now = std::time::SystemTime::now()
@@ -849,8 +863,8 @@ fn t8_a_wall_clock_step_changes_neither_the_period_nor_the_estimate() {
         .map(|f| status(&decode(&out, f)))
         .collect();
     assert!(
-        stalls > 0 || !statuses.contains(&Status::HoldInputLost),
-        "a wall clock step must not look like input loss"
+        hold_episodes(&statuses) <= stalls,
+        "a wall clock step must not look like input loss: {statuses:?}"
     );
     let last = decode(&out, out_frames.last().unwrap());
     assert_eq!(status(&last), Status::Valid);
@@ -905,7 +919,7 @@ fn t9_a_daemon_not_scheduled_for_a_while_finds_its_inputs_waiting_not_lost() {
         .collect();
     assert!(statuses.len() > 100, "{} LEVELING frames", statuses.len());
     assert!(
-        stalls > 0 || !statuses.contains(&Status::HoldInputLost),
+        hold_episodes(&statuses) <= stalls,
         "queued frames must not look like input loss: {statuses:?}"
     );
 }
