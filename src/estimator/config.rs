@@ -39,7 +39,7 @@ pub struct EstimatorConfig {
     pub gravity_walk_mps2_rts: f64,
     /// Settled samples needed before the deceleration window is evaluated, s.
     pub settle_time_s: f64,
-    /// A window walk starts where the 5-sample mean specific force last matched the
+    /// A window walk starts where the mean specific force over 0.05 s (at least 5 samples) last matched the
     /// standstill mean within this, per axis, m/s^2. Constant braking has no variance,
     /// so this, not the stillness test, finds the moment the car came to rest.
     pub rest_acc_tol_mps2: f64,

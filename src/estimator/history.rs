@@ -1,13 +1,13 @@
 //! Walks over the buffered IMU history: where the car came to rest, the attitude
 //! carried by the gyro, and the motion of the IMU on the rocking body.
 
-use super::Estimator;
 use super::attitude;
+use super::{Estimator, MAX_RATE_HZ};
 use nalgebra::{UnitQuaternion, Vector3};
 
-/// Half-width of the gyro smoothing behind the lever-arm acceleration, samples:
-/// `lever_acc_at(i)` needs twice this many samples after `i`.
-pub(super) const LEVER_SMOOTH_HALF: usize = 5;
+/// Half-width of the gyro smoothing behind the lever-arm acceleration, s:
+/// `lever_acc_at(i)` needs twice as many samples after `i` (`lever_half`).
+const LEVER_SMOOTH_HALF_S: f64 = 0.05;
 /// The walk back to the rest edge steps over a knock at rest (a door shut, someone
 /// sitting down): a disturbance of the longitudinal force no longer than this, s,
 const KNOCK_MAX_S: f64 = 0.6;
@@ -17,42 +17,90 @@ const KNOCK_MAX_S: f64 = 0.6;
 const KNOCK_MAX_DV_MPS: f64 = 0.05;
 /// and never more than this on the way, m/s: braking gains that within 0.1 s at
 /// 1 m/s^2, and never comes back to rest. A knock ends once this many samples in a row
-/// are back at rest (its oscillation crosses rest between swings).
+/// are back at rest for this long, s (its oscillation crosses rest between swings).
 const KNOCK_PEAK_DV_MPS: f64 = 0.1;
-const KNOCK_QUIET_SAMPLES: usize = 10;
+const KNOCK_QUIET_S: f64 = 0.1;
 
-/// Samples averaged where a walk looks for the car at rest (noise of one sample is
-/// about 0.03 m/s^2; five keep a single outlier from ending the rest).
-pub(super) const REST_AVG: usize = 5;
+/// Span averaged where a walk looks for the car at rest, s (noise of one 100 Hz sample
+/// is about 0.03 m/s^2; five keep a single outlier from ending the rest).
+const REST_AVG_S: f64 = 0.05;
+const REST_AVG_MIN: usize = 5;
+/// Most samples `REST_AVG_S` may span (the buffers that hold them), 200 Hz and more.
+const REST_AVG_MAX: usize = 16;
+
+/// A sample interval further than this factor from the learnt one is a drop or a burst
+/// and does not teach it; this many such intervals in a row set a new rate.
+const INTERVAL_OUTLIER: f64 = 1.5;
+const INTERVAL_RUN: u32 = 8;
+/// Gain of the interval's running mean (about 5 s at 100 Hz: frame jitter moves it by
+/// less than 0.1 %).
+const INTERVAL_GAIN: f64 = 0.002;
 
 /// A forward walk starts this long before the extrapolated drive-off, s.
 const DRIVE_OFF_MARGIN_S: f64 = 0.05;
 
 impl Estimator {
+    /// Follow the IMU's sample interval (`dt_s`, s, from one sample to the next): the
+    /// history's spans are set in seconds and counted in samples at the IMU's own rate.
+    /// A dropped frame or a burst is left out; a run of intervals that all disagree is a
+    /// new rate (the first samples, an IMU configured otherwise).
+    pub(super) fn learn_sample_interval(&mut self, dt_s: f64) {
+        let dt = self.sample_dt_s.0;
+        if dt_s > dt / INTERVAL_OUTLIER && dt_s < dt * INTERVAL_OUTLIER {
+            self.sample_dt_s = (dt + INTERVAL_GAIN * (dt_s - dt), 0);
+        } else if dt_s > 0.0 && dt_s <= 0.1 {
+            let run = self.sample_dt_s.1 + 1;
+            self.sample_dt_s = if run >= INTERVAL_RUN {
+                (dt_s.max(0.5 / MAX_RATE_HZ), 0)
+            } else {
+                (dt, run)
+            };
+        }
+    }
+
+    /// Samples spanning `span_s` at the IMU's rate, at least one.
+    pub(super) fn samples_in(&self, span_s: f64) -> usize {
+        ((span_s / self.sample_dt_s.0).round() as usize).max(1)
+    }
+
+    /// Half-width of the gyro smoothing behind the lever-arm acceleration, samples:
+    /// `LEVER_SMOOTH_HALF_S`, and at least 5 against the gyro's noise (a 50 Hz IMU with
+    /// 3 was 0.05-0.11 deg worse in single-window p95 over 4 realistic urban seeds).
+    pub(super) fn lever_half(&self) -> usize {
+        self.samples_in(LEVER_SMOOTH_HALF_S).max(5)
+    }
+
+    /// Samples averaged where a walk looks for the car at rest: `REST_AVG_S`, and never
+    /// fewer than `REST_AVG_MIN` against a single outlier.
+    pub(super) fn rest_avg(&self) -> usize {
+        self.samples_in(REST_AVG_S)
+            .clamp(REST_AVG_MIN, REST_AVG_MAX)
+    }
+
     /// Walking back from the newest sample, the index of the earliest sample of the
-    /// trailing run whose 5-sample mean specific force matches `f_rest` (not before `floor`).
+    /// trailing run whose mean specific force over `rest_avg` samples matches `f_rest` (not before `floor`).
     pub(super) fn rest_edge(&self, f_rest: &Vector3<f64>, floor: usize) -> usize {
-        const AVG: usize = 5;
+        let avg = self.rest_avg();
         let n = self.hist.len();
         let tol = self.cfg.rest_acc_tol_mps2;
         let mut edge = n - 1;
         let mut i = n;
-        while i >= floor + AVG {
+        while i >= floor + avg {
             let mut m = Vector3::zeros();
-            for j in i - AVG..i {
+            for j in i - avg..i {
                 m += self.hist.get(j).acc();
             }
-            if ((m / AVG as f64) - f_rest).amax() > tol {
+            if ((m / avg as f64) - f_rest).amax() > tol {
                 break;
             }
-            edge = i - AVG;
+            edge = i - avg;
             i -= 1;
         }
         edge
     }
 
     /// Walking back from the newest sample, the newest one (not before `floor`) at which
-    /// the car was still at rest: the mean specific force over `REST_AVG` samples
+    /// the car was still at rest: the mean specific force over `rest_avg` samples
     /// matches the standstill reference `g_mean`, and the body does not pitch. A driver
     /// ramps the acceleration in, and the body starts to squat with it: where the force
     /// first departs, the IMU 2 m ahead of the pitch centre already moves with the
@@ -72,15 +120,16 @@ impl Estimator {
         // Newest index whose mean departs by at most twice the tolerance, then by at most
         // the tolerance (and the body does not pitch).
         let (mut i_twice, mut i_rest) = (None, None);
+        let avg = self.rest_avg();
         let mut i = n - 1;
-        while i >= floor + REST_AVG {
+        while i >= floor + avg {
             let (mut f, mut wy) = (Vector3::zeros(), 0.0);
-            for j in i + 1 - REST_AVG..=i {
+            for j in i + 1 - avg..=i {
                 let x = self.hist.get(j);
                 f += x.acc();
                 wy += x.gyro_rps().y;
             }
-            let k = REST_AVG as f64;
+            let k = avg as f64;
             let dev = (f / k - g_mean).amax();
             if dev <= 2.0 * tol {
                 i_twice.get_or_insert(i);
@@ -115,18 +164,19 @@ impl Estimator {
         let n = self.hist.len();
         let start = self.index_at(self.hist.get(floor).t_s + 0.1).min(n - 1);
         let ref_end = self.index_at(self.hist.get(start).t_s + ROCKING_REF_S);
-        if ref_end + REST_AVG >= n {
+        let avg = self.rest_avg();
+        if ref_end + avg >= n {
             return n - 1;
         }
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let acc_bias = self.acc_bias_mps2();
         let tol = self.cfg.rest_acc_tol_mps2;
         // One pass forward from `start`, the attitude carried by the gyro: first the
-        // reference, then the trailing mean of `REST_AVG` samples against it. Kept are
+        // reference, then the trailing mean of `rest_avg` samples against it. Kept are
         // the newest sample whose mean matches within the tolerance, and within twice it.
         let mut q = UnitQuaternion::identity();
         let mut reference = Vector3::zeros();
-        let mut recent = [Vector3::zeros(); REST_AVG];
+        let mut recent = [Vector3::zeros(); REST_AVG_MAX];
         let mut sum = Vector3::zeros();
         let (mut i_twice, mut i_rest) = (None, None);
         for j in start..n {
@@ -136,7 +186,7 @@ impl Estimator {
                 q = attitude::propagate(&q, &w, b.t_s - a.t_s);
             }
             let f = q * (self.hist.get(j).acc() - acc_bias - self.lever_acc_at(j));
-            let slot = (j - start) % REST_AVG;
+            let slot = (j - start) % avg;
             sum += f - recent[slot];
             recent[slot] = f;
             if j < ref_end {
@@ -146,7 +196,7 @@ impl Estimator {
             if j == ref_end {
                 reference /= (ref_end - start) as f64;
             }
-            let dev = (sum / REST_AVG as f64 - reference).amax();
+            let dev = (sum / avg as f64 - reference).amax();
             if dev <= 2.0 * tol {
                 i_twice = Some(j);
             }
@@ -262,13 +312,14 @@ impl Estimator {
         floor: usize,
         g: f64,
     ) -> (usize, UnitQuaternion<f64>) {
-        const AVG: usize = 5;
+        let avg = self.rest_avg();
+        let knock_quiet = self.samples_in(KNOCK_QUIET_S);
         let tol = self.cfg.rest_acc_tol_mps2;
-        let lowest = floor.saturating_sub(200);
+        let lowest = floor.saturating_sub(self.samples_in(2.0));
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, g);
         let mut q = q_ref;
-        let mut res = [0.0f64; AVG];
+        let mut res = [0.0f64; REST_AVG_MAX];
         let (mut edge, mut q_edge) = (from, q_ref);
         // A knock open on the walk: (time it began, velocity change across it so far,
         // samples in a row back at rest).
@@ -280,15 +331,15 @@ impl Estimator {
             // The IMU rides the rocking body at the lever arm: remove that acceleration.
             let lever_acc = self.lever_acc_at(i);
             let r = x.acc_mps2[0] - (q.inverse() * up).x - lever_acc.x;
-            res[k % AVG] = r;
+            res[k % avg] = r;
             k += 1;
             if let Some((_, dv, _)) = knock.as_mut()
                 && i + 1 < self.hist.len()
             {
                 *dv += r * (self.hist.get(i + 1).t_s - x.t_s);
             }
-            if k >= AVG {
-                let disturbed = (res.iter().sum::<f64>() / AVG as f64).abs() > tol;
+            if k >= avg {
+                let disturbed = (res[..avg].iter().sum::<f64>() / avg as f64).abs() > tol;
                 knock = match (disturbed, knock) {
                     (true, None) => Some((x.t_s, 0.0, 0)),
                     (true, Some((t0, dv, _))) => {
@@ -298,7 +349,7 @@ impl Estimator {
                         }
                         Some((t0, dv, 0))
                     }
-                    (false, Some((t0, dv, quiet))) if quiet + 1 < KNOCK_QUIET_SAMPLES => {
+                    (false, Some((t0, dv, quiet))) if quiet + 1 < knock_quiet => {
                         Some((t0, dv, quiet + 1))
                     }
                     (false, Some((_, dv, _))) => {
@@ -347,7 +398,7 @@ impl Estimator {
         g: f64,
     ) -> Vector3<f64> {
         const REST_VELOCITY_S: f64 = 0.25;
-        const SKIP: usize = 2;
+        let skip = self.samples_in(0.02);
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let acc_bias = self.acc_bias_mps2();
         let lever = self.lever_arm();
@@ -373,7 +424,7 @@ impl Estimator {
                 * (0.5 * dt);
             q = q_next;
             j = next;
-            if j.abs_diff(i) > SKIP {
+            if j.abs_diff(i) > skip {
                 sum += q * (b.gyro_rps() - bias).cross(&lever) - dv;
                 count += 1;
             }
@@ -427,25 +478,25 @@ impl Estimator {
     }
 
     /// Angular acceleration (rad/s^2) and bias-free rate (rad/s) of the body at history
-    /// sample `i`, from gyro readings smoothed over `2 LEVER_SMOOTH_HALF + 1` samples;
+    /// sample `i`, from gyro readings smoothed over `2 lever_half + 1` samples;
     /// `None` too near either end of the history.
     pub(super) fn rocking_at(&self, i: usize) -> Option<(Vector3<f64>, Vector3<f64>)> {
-        const H: usize = LEVER_SMOOTH_HALF;
-        if i < 2 * H || i + 2 * H >= self.hist.len() {
+        let h = self.lever_half();
+        if i < 2 * h || i + 2 * h >= self.hist.len() {
             return None;
         }
         let rate = |c: usize| {
             let mut w = Vector3::zeros();
-            for j in c - H..=c + H {
+            for j in c - h..=c + h {
                 w += self.hist.get(j).gyro_rps();
             }
-            w / (2 * H + 1) as f64
+            w / (2 * h + 1) as f64
         };
-        let span = self.hist.get(i + H).t_s - self.hist.get(i - H).t_s;
+        let span = self.hist.get(i + h).t_s - self.hist.get(i - h).t_s;
         if span <= 0.0 {
             return None;
         }
-        let alpha = (rate(i + H) - rate(i - H)) / span;
+        let alpha = (rate(i + h) - rate(i - h)) / span;
         Some((
             alpha,
             rate(i) - self.bias_rps.unwrap_or_else(Vector3::zeros),
@@ -501,6 +552,36 @@ mod tests {
             t += 0.01;
         }
         est
+    }
+
+    #[test]
+    fn spans_in_seconds_count_samples_at_the_imus_own_rate() {
+        // 100 Hz with frames dropped, 200 Hz, and 50 Hz whose first interval is a drop:
+        // the spans stay the same in seconds.
+        for (rate_hz, lever_half, knock) in [(100.0, 5, 10), (200.0, 10, 20), (50.0, 5, 5)] {
+            let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+            let dt = 1.0 / rate_hz;
+            let mut t = 0.0;
+            for k in 0..2000 {
+                // Every 37th frame lost, and the second one too.
+                let lost = k == 1 || k % 37 == 0;
+                let jitter = 0.0004 * ((k * 7919) % 5) as f64 / 4.0;
+                t += dt;
+                if !lost {
+                    est.push_imu(
+                        ImuSample::new(t + jitter, [0.0, 0.0, G], [0.0; 3]),
+                        &mut |_| {},
+                    );
+                }
+            }
+            assert_eq!(est.lever_half(), lever_half, "{rate_hz} Hz");
+            assert_eq!(est.samples_in(0.1), knock, "{rate_hz} Hz");
+            assert_eq!(
+                est.samples_in(2.0),
+                (2.0 * rate_hz) as usize,
+                "{rate_hz} Hz"
+            );
+        }
     }
 
     #[test]

@@ -111,29 +111,30 @@ impl Estimator {
     /// long at 1.5 Hz, and a door shock at 6 Hz is smoothed to a third. The caller
     /// checks that the samples exist (as `rocking_at` does).
     fn acc_smoothed_like_rocking(&self, i: usize) -> Vector3<f64> {
-        const H: usize = super::history::LEVER_SMOOTH_HALF;
-        // alpha(i) = (mean rate over i+H +- H - mean rate over i-H +- H) / span: for each
-        // of the 2H+1 centres k, the rate difference across k +- H is the trapezoid mean
-        // of alpha over those 2H intervals. The same two means on the accelerometer:
+        let h = self.lever_half();
+        // alpha(i) = (mean rate over i+h +- h - mean rate over i-h +- h) / span: for each
+        // of the 2h+1 centres k, the rate difference across k +- h is the trapezoid mean
+        // of alpha over those 2h intervals. The same two means on the accelerometer:
         let mut sum = Vector3::zeros();
-        for k in i - H..=i + H {
-            let mut inner = (self.hist.get(k - H).acc() + self.hist.get(k + H).acc()) * 0.5;
-            for j in k + 1 - H..k + H {
+        for k in i - h..=i + h {
+            let mut inner = (self.hist.get(k - h).acc() + self.hist.get(k + h).acc()) * 0.5;
+            for j in k + 1 - h..k + h {
                 inner += self.hist.get(j).acc();
             }
-            sum += inner / (2 * H) as f64;
+            sum += inner / (2 * h) as f64;
         }
-        sum / (2 * H + 1) as f64
+        sum / (2 * h + 1) as f64
     }
 
     /// Variance of the noise in `rocking_at`'s angular acceleration per axis,
     /// (rad/s^2)^2, from the gyro's own noise between samples `from` and `to`: second
     /// differences of the pitch rate cancel the rocking (1-2 Hz at 100 Hz) and keep the
     /// noise (6 sigma^2); the median keeps door shocks out. The smoothing of
-    /// `rocking_at` (two 11-sample means 10 samples apart, sharing one) turns a rate
-    /// noise sigma into an acceleration noise of sigma^2 * 20 / 121 / span^2.
+    /// `rocking_at` (two means of 2h + 1 samples, 2h apart, sharing one; 11 samples at
+    /// 100 Hz) turns a rate noise sigma into an acceleration noise of
+    /// sigma^2 * (2 / w - 2 / w^2) / span^2 for w = 2h + 1.
     fn alpha_noise_var(&self, from: usize, to: usize) -> f64 {
-        const H: usize = super::history::LEVER_SMOOTH_HALF;
+        let h = self.lever_half();
         const MAX: usize = 256;
         let mut d2 = [0.0f64; MAX];
         let mut n = 0;
@@ -149,8 +150,8 @@ impl Estimator {
         d.sort_by(f64::total_cmp);
         // Median of |N(0, 6 s^2)| is 0.6745 * sqrt(6) s.
         let sigma = d[n / 2] / (0.6745 * 6f64.sqrt());
-        let span = self.hist.get(to).t_s - self.hist.get(to - 2 * H).t_s;
-        let w = (2 * H + 1) as f64;
+        let span = self.hist.get(to).t_s - self.hist.get(to - 2 * h).t_s;
+        let w = (2 * h + 1) as f64;
         let var_diff = sigma * sigma * (2.0 / w - 2.0 / (w * w));
         if span > 0.0 {
             var_diff / (span * span)
@@ -180,7 +181,8 @@ impl Estimator {
         let n = self.hist.len();
         let t_end = self.hist.get(settled.min(n - 1)).t_s + FIT_TAIL_S;
         let last = self.index_at(t_end).min(n - 1);
-        if last <= rest + 2 * super::history::LEVER_SMOOTH_HALF + 2 {
+        let h = self.lever_half();
+        if last <= rest + 2 * h + 2 {
             return;
         }
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
@@ -191,7 +193,7 @@ impl Estimator {
         let mut used = 0usize;
         let mut i = last;
         // The smoothing reaches 2 H samples either side: keep braking out of it.
-        let first = rest + 2 * super::history::LEVER_SMOOTH_HALF + 2;
+        let first = rest + 2 * h + 2;
         while i > first {
             if let Some((alpha, omega)) = self
                 .rocking_at(i)
@@ -201,8 +203,7 @@ impl Estimator {
                 let res = self.acc_smoothed_like_rocking(i) - g_imu;
                 let m = skew(&alpha) + skew(&omega) * skew(&omega);
                 let predicted = m * self.lever_arm;
-                const SPAN: usize = 2 * super::history::LEVER_SMOOTH_HALF;
-                let impulsive = (i - SPAN..=(i + SPAN).min(n - 1))
+                let impulsive = (i - 2 * h..=(i + 2 * h).min(n - 1))
                     .any(|j| (self.hist.get(j).acc() - g_imu).amax() > MAX_ROCKING_MPS2);
                 if !impulsive && (res - predicted).amax() <= MAX_RESIDUAL_MPS2 {
                     fit.add(&m, &res);

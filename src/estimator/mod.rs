@@ -69,6 +69,9 @@ pub struct Estimator {
     stop_bias: Option<GravityFilter>,
     /// Settled samples waiting one stillness window before they join the reference.
     settle_queue: std::collections::VecDeque<ImuSample>,
+    /// The IMU's sample interval, s: the walks over the history count samples for
+    /// spans given in seconds (`samples_in`); intervals in a row that disagree with it.
+    sample_dt_s: (f64, u32),
     /// The last stillness window was close enough to the bias to update it.
     bias_window_ok: bool,
     /// Mean specific force over the last stillness window, m/s^2.
@@ -104,6 +107,8 @@ const MOTION_PAUSE_SHARE: f64 = 0.35;
 
 /// Highest IMU rate the buffers are sized for, Hz.
 const MAX_RATE_HZ: f64 = 200.0;
+/// Sample interval assumed until the IMU's own is learnt, s (100 Hz).
+const NOMINAL_SAMPLE_DT_S: f64 = 0.01;
 
 impl Estimator {
     pub fn new(cfg: EstimatorConfig) -> Result<Self, ConfigError> {
@@ -133,6 +138,7 @@ impl Estimator {
             settle_queue: std::collections::VecDeque::with_capacity(
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),
+            sample_dt_s: (NOMINAL_SAMPLE_DT_S, 0),
             gravity: None,
             stop_bias: None,
             fwd: WindowIntegrator::with_capacity(win_cap),
@@ -268,6 +274,9 @@ impl Estimator {
                 // A hole in the data: nothing before it can be trusted as still.
                 self.quiet_since = None;
             }
+        }
+        if let Some(t) = self.last_t_s {
+            self.learn_sample_interval(s.t_s - t);
         }
         self.last_t_s = Some(s.t_s);
         self.hist.push(s);

@@ -14,7 +14,6 @@
 
 use super::Estimator;
 use super::attitude::{self, attitude_from_gravity, pitch_of};
-use super::history::LEVER_SMOOTH_HALF;
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// A settled window re-anchors the tracker when its tilt agrees with the carried
@@ -23,10 +22,6 @@ const ANCHOR_TOL_RAD: f64 = 0.3 * std::f64::consts::PI / 180.0;
 
 /// Shortest time between two anchors, s.
 const ANCHOR_PERIOD_S: f64 = 1.0;
-
-/// Samples the tracker runs behind the newest one: the lever-arm acceleration at a
-/// sample needs the gyro readings after it.
-const LAG_SAMPLES: usize = 2 * LEVER_SMOOTH_HALF + 1;
 
 /// A drive-off picks its speed up quickly (a gentle one at 0.3 m/s^2); a tilt the gyro
 /// did not fully explain (a load ramping in, a gyro bias not yet learnt) leaves a small
@@ -131,10 +126,11 @@ impl Estimator {
     /// Integrate the samples that have become available to `m`.
     fn advance_motion(&self, m: &mut MotionTracker) -> f64 {
         let n = self.hist.len();
-        if n <= LAG_SAMPLES + 1 {
+        let lag = self.motion_lag();
+        if n <= lag + 1 {
             return m.speed_mps();
         }
-        let newest = n - 1 - LAG_SAMPLES;
+        let newest = n - 1 - lag;
         let mut i = self.index_at(m.t_last_s).max(1);
         if self.hist.get(i).t_s <= m.t_last_s {
             i += 1;
@@ -187,7 +183,13 @@ impl Estimator {
     /// Time from which a tracker started now integrates: the newest sample it can use.
     pub(super) fn motion_start_s(&self) -> f64 {
         let n = self.hist.len();
-        self.hist.get(n.saturating_sub(LAG_SAMPLES + 1)).t_s
+        self.hist.get(n.saturating_sub(self.motion_lag() + 1)).t_s
+    }
+
+    /// Samples the tracker runs behind the newest one: the lever-arm acceleration at a
+    /// sample needs the gyro readings after it.
+    fn motion_lag(&self) -> usize {
+        2 * self.lever_half() + 1
     }
 }
 

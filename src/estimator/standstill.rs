@@ -164,7 +164,7 @@ impl Estimator {
         // has no variance, so the stillness test alone would start too early.
         let rest = self
             .rest_edge(&f_rest, 0)
-            .max(first_quiet.saturating_sub(100))
+            .max(first_quiet.saturating_sub(self.samples_in(1.0)))
             .min(n - 1);
         // At rest the car lost, from the last wheel reading on, just the speed that
         // reading showed. A rolling stop that never reached rest, taken here while it
