@@ -184,6 +184,31 @@ fn rolling_stops_give_no_window_and_no_load_change() {
 }
 
 #[test]
+fn rolling_stops_hidden_by_a_wide_wheel_dead_zone_give_no_window() {
+    // Wheels that read zero below 3 km/h hide the whole slow part of a rolling stop: the
+    // IMU sees braking turn into a steady gentle pull-away and nothing else.
+    let r = RealisticSpec {
+        rolling_stop_share: 1.0,
+        ..gentle()
+    };
+    let mut total = 0;
+    for seed in [21, 22, 23] {
+        let mut s = spec(seed, 10, r.clone());
+        let mut sensors = s
+            .sensors
+            .clone()
+            .expect("the urban scenario sets its sensors");
+        sensors.wheel_zero_below_kmh = 3.0;
+        s.sensors = Some(sensors);
+        let c = checks(&s, 0);
+        assert!(c.rolling_stops >= 8, "{c:?}");
+        assert_eq!(c.rolling_with_output, 0, "seed {seed}: {c:?}");
+        total += c.rolling_stops;
+    }
+    assert!(total >= 27, "{total}");
+}
+
+#[test]
 fn a_load_ramping_in_while_the_stop_settles_is_applied_before_drive_off() {
     let r = RealisticSpec {
         load_stop_short_share: 0.0,

@@ -81,6 +81,9 @@ pub struct Estimator {
     imu_moved: bool,
     /// Time (s) and mean speed (m/s) of the last wheel reading with a speed.
     last_wheel_motion: Option<(f64, f64)>,
+    /// Earlier wheel readings with a speed, time s and m/s, newest first, one every
+    /// `WHEEL_MARK_EVERY_S`: the rest check compares the IMU's speed with them.
+    wheel_marks: [Option<(f64, f64)>; WHEEL_MARKS],
     /// Lever-arm fit from the rocking at stops, and the arm in use, m.
     lever_fit: LeverFit,
     lever_arm: Vector3<f64>,
@@ -107,6 +110,10 @@ const MOTION_PAUSE_SHARE: f64 = 0.35;
 
 /// Highest IMU rate the buffers are sized for, Hz.
 const MAX_RATE_HZ: f64 = 200.0;
+/// Period and number of the wheel readings kept for the rest check (`wheel_marks`):
+/// they reach 3 s back, s.
+const WHEEL_MARK_EVERY_S: f64 = 0.5;
+const WHEEL_MARKS: usize = 6;
 /// Sample interval assumed until the IMU's own is learnt, s (100 Hz).
 const NOMINAL_SAMPLE_DT_S: f64 = 0.01;
 
@@ -133,6 +140,7 @@ impl Estimator {
             imu_moved: false,
             dead_zone_motion: None,
             last_wheel_motion: None,
+            wheel_marks: [None; WHEEL_MARKS],
             lever_fit: LeverFit::default(),
             lever_arm: Vector3::from(cfg.lever_arm_m),
             settle_queue: std::collections::VecDeque::with_capacity(
@@ -218,6 +226,10 @@ impl Estimator {
         } else {
             self.wheels_zero_since = None;
             self.last_wheel_motion = Some((w.t_s, w.mean_kmh() / 3.6));
+            if self.wheel_marks[0].is_none_or(|(t, _)| w.t_s - t >= WHEEL_MARK_EVERY_S) {
+                self.wheel_marks.rotate_right(1);
+                self.wheel_marks[0] = Some((w.t_s, w.mean_kmh() / 3.6));
+            }
             self.check_forward_speed(w.mean_kmh() / 3.6);
             if self.wheels_stopped {
                 self.wheels_stopped = false;
@@ -243,6 +255,7 @@ impl Estimator {
     pub fn wheels_lost(&mut self) {
         self.wheels = None;
         self.last_wheel_motion = None;
+        self.wheel_marks = [None; WHEEL_MARKS];
         self.wheels_zero_since = None;
         self.wheels_stopped = false;
         self.motion_unknown = true;
