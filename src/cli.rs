@@ -149,6 +149,11 @@ pub enum BenchCmd {
         /// print the pooled results.
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1000))]
         seeds: u64,
+        /// Change a scenario setting before running, KEY=VALUE with a dotted key and a
+        /// TOML value, for example `sensors.imu_rate_hz=200` or
+        /// `realistic.pitch_freq_hz=[1.0,1.1]` (repeatable; applies to every scenario).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
     },
 }
 
@@ -270,6 +275,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 threads,
                 ablation,
                 seeds,
+                set,
             } => commands::bench::accuracy(
                 &scenarios,
                 format == Format::Json,
@@ -277,6 +283,7 @@ pub fn run(cli: Cli) -> Result<i32> {
                 threads,
                 ablation,
                 seeds,
+                &set,
             ),
         },
         #[cfg(feature = "sim")]

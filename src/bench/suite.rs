@@ -77,6 +77,36 @@ impl DriveSpec {
         toml::from_str(text)
     }
 
+    /// Parse with settings changed: each of `set` is `key=value`, the key dotted into
+    /// the scenario's tables (`sensors.imu_rate_hz`), the value in TOML (`200`,
+    /// `[1.0, 1.1]`, `"name"`).
+    pub fn parse_with(text: &str, set: &[String]) -> anyhow::Result<Self> {
+        use anyhow::{Context, bail};
+        let mut table: toml::Table = toml::from_str(text)?;
+        for s in set {
+            let Some((key, value)) = s.split_once('=') else {
+                bail!("--set {s}: write KEY=VALUE, for example sensors.imu_rate_hz=200");
+            };
+            let value: toml::Table = toml::from_str(&format!("v = {}", value.trim()))
+                .with_context(|| {
+                    format!("--set {s}: the value is not TOML (quote text: name=\"mine\")")
+                })?;
+            let value = value.get("v").cloned().context("a TOML value")?;
+            let parts: Vec<&str> = key.trim().split('.').collect();
+            let (last, path) = parts.split_last().context("an empty key")?;
+            let mut t = &mut table;
+            for p in path {
+                t = t
+                    .entry(p.to_string())
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                    .as_table_mut()
+                    .with_context(|| format!("--set {s}: `{p}` is not a table"))?;
+            }
+            t.insert(last.to_string(), value);
+        }
+        Ok(toml::Value::Table(table).try_into()?)
+    }
+
     /// One simulator scenario per load case. The second load case, when
     /// `load_change_at_stop` is set, starts in the first and is loaded at that stop.
     pub fn cases(&self) -> Vec<Case> {
@@ -237,6 +267,39 @@ pub(crate) fn add_bumps(road: &mut crate::sim::Road, stops: &[f64], share: f64, 
                 (s + 6.0, base),
             ]);
             road.grade_deg.sort_by(|a, b| a.0.total_cmp(&b.0));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DriveSpec;
+
+    const URBAN: &str = include_str!("../../scenarios/realistic/urban.toml");
+
+    #[test]
+    fn settings_are_changed_by_dotted_keys_and_mistakes_are_named() {
+        let set = |s: &[&str]| {
+            let owned: Vec<String> = s.iter().map(|x| x.to_string()).collect();
+            DriveSpec::parse_with(URBAN, &owned)
+        };
+        let s = set(&[
+            "sensors.imu_rate_hz=200",
+            "realistic.pitch_freq_hz=[1.0, 1.1]",
+            "name=\"urban-200hz\"",
+        ])
+        .unwrap();
+        assert_eq!(s.sensors.unwrap().imu_rate_hz, 200.0);
+        assert_eq!(s.realistic.unwrap().pitch_freq_hz, [1.0, 1.1]);
+        assert_eq!(s.name, "urban-200hz");
+        // A misspelt key, a value that is not TOML, a path through a value.
+        for bad in [
+            "sensors.imu_rate=200",
+            "sensors.imu_rate_hz=fast",
+            "name.x=1",
+            "seed",
+        ] {
+            assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }
     }
 }

@@ -11,6 +11,7 @@ pub fn accuracy(
     threads: Option<usize>,
     ablation: bool,
     seeds: u64,
+    set: &[String],
 ) -> Result<i32> {
     use anyhow::Context;
     let files: Vec<std::path::PathBuf> = if scenarios.is_empty() {
@@ -30,7 +31,7 @@ pub fn accuracy(
     for f in &files {
         let text =
             std::fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?;
-        let mut spec = crate::bench::suite::DriveSpec::parse(&text)
+        let mut spec = crate::bench::suite::DriveSpec::parse_with(&text, set)
             .with_context(|| format!("scenario {} is not valid", f.display()))?;
         let base = spec.seed;
         plotted.push((spec.name.clone(), base));

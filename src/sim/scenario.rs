@@ -231,7 +231,7 @@ impl Vehicle {
 
 /// Sensor error models and rates.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct Sensors {
     pub imu_rate_hz: f64,
     pub wheel_rate_hz: f64,
