@@ -82,6 +82,37 @@ fn gentle_drive_offs_in_the_wheel_dead_zone_give_unbiased_windows() {
     assert_unbiased(&errs, 0.25);
 }
 
+#[test]
+fn gentle_stops_whose_end_the_wheel_dead_zone_hides_are_not_taken_for_rest_while_braking() {
+    // Wheels that read zero below 3 km/h hide the last 1-2 s of a gentle stop: steady
+    // braking, a quiet IMU. Taken for rest, its force was the reference of a window
+    // 2-4 deg off, the real stop found no standstill, and the drive never reached VALID.
+    let (mut n, mut ok, mut errs) = (0, 0, Vec::new());
+    for seed in [13, 14] {
+        let mut s = spec(seed, 10, gentle());
+        s.brake_mps2 = [0.5, 1.0];
+        let mut sensors = s
+            .sensors
+            .clone()
+            .expect("the urban scenario sets its sensors");
+        sensors.wheel_zero_below_kmh = 3.0;
+        s.sensors = Some(sensors);
+        let c = checks(&s, 0);
+        n += c.gentle_drive_offs;
+        ok += c.gentle_accepted;
+        errs.extend(c.window_errors);
+    }
+    assert!(n >= 16, "{n} gentle drive-offs");
+    assert!(
+        ok as f64 >= 0.9 * n as f64,
+        "{ok} of {n} gentle drive-offs gave a window"
+    );
+    let worst = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+    // Four times the 0.25 deg spread of single windows on these drives.
+    assert!(worst <= 1.0, "a window {worst:.2} deg off: {errs:?}");
+    assert_unbiased(&errs, 0.25);
+}
+
 /// The mean of `errs` is within three standard errors of zero, for single windows of
 /// `window_rms_deg` spread.
 fn assert_unbiased(errs: &[f64], window_rms_deg: f64) {

@@ -15,6 +15,9 @@ const REST_CHECK_SPAN_S: f64 = 6.0;
 /// from that reading by this much, m/s (wheel quantisation and update interval, a
 /// body that still rocks).
 const REST_SPEED_TOL_MPS: f64 = 0.15;
+/// A rest edge this much before the last wheel reading with a speed is still the
+/// wheels' and the IMU's clocks agreeing, s (CAN arrival jitter).
+const REST_WHEEL_SLACK_S: f64 = 0.05;
 /// The earlier wheel readings (`wheel_marks`) checked are at least this far before the
 /// last one and at most this far before the rest edge, s,
 const MARK_MIN_LEAD_S: f64 = 0.3;
@@ -181,6 +184,14 @@ impl Estimator {
         // brakes or pulls away steadily, fails this by the speed it still had.
         if let Some((t_w, v_w)) = self.last_wheel_motion {
             let t_rest = self.hist.get(rest).t_s;
+            // Nor can it have come to rest before the wheels last showed it moving: a
+            // force that has been steady since then is braking or pulling away in the
+            // wheels' dead zone, not gravity (a 3 km/h dead zone hides the last 1-2 s of
+            // a gentle stop).
+            if t_rest < t_w - REST_WHEEL_SLACK_S && t_w - t_rest < REST_CHECK_SPAN_S {
+                self.quiet_since = None;
+                return;
+            }
             if t_rest > t_w && t_rest - t_w < REST_CHECK_SPAN_S && self.hist.get(0).t_s < t_w {
                 let q = attitude_from_gravity(&f_rest);
                 let g = self.gravity_mps2(&f_rest);
