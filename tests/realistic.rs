@@ -24,6 +24,17 @@ fn spec(seed: u64, stops: usize, r: RealisticSpec) -> DriveSpec {
     s
 }
 
+/// `s` with wheels that read zero below `kmh`.
+fn with_dead_zone(mut s: DriveSpec, kmh: f64) -> DriveSpec {
+    let mut sensors = s
+        .sensors
+        .clone()
+        .expect("the urban scenario sets its sensors");
+    sensors.wheel_zero_below_kmh = kmh;
+    s.sensors = Some(sensors);
+    s
+}
+
 fn valid(e: &Estimate) -> bool {
     e.std_err_deg <= 0.06 && e.weight >= 4.0
 }
@@ -89,14 +100,8 @@ fn gentle_stops_whose_end_the_wheel_dead_zone_hides_are_not_taken_for_rest_while
     // 2-4 deg off, the real stop found no standstill, and the drive never reached VALID.
     let (mut n, mut ok, mut errs) = (0, 0, Vec::new());
     for seed in [13, 14] {
-        let mut s = spec(seed, 10, gentle());
+        let mut s = with_dead_zone(spec(seed, 10, gentle()), 3.0);
         s.brake_mps2 = [0.5, 1.0];
-        let mut sensors = s
-            .sensors
-            .clone()
-            .expect("the urban scenario sets its sensors");
-        sensors.wheel_zero_below_kmh = 3.0;
-        s.sensors = Some(sensors);
         let c = checks(&s, 0);
         n += c.gentle_drive_offs;
         ok += c.gentle_accepted;
@@ -224,13 +229,7 @@ fn rolling_stops_hidden_by_a_wide_wheel_dead_zone_give_no_window() {
     };
     let mut total = 0;
     for seed in [21, 22, 23] {
-        let mut s = spec(seed, 10, r.clone());
-        let mut sensors = s
-            .sensors
-            .clone()
-            .expect("the urban scenario sets its sensors");
-        sensors.wheel_zero_below_kmh = 3.0;
-        s.sensors = Some(sensors);
+        let s = with_dead_zone(spec(seed, 10, r.clone()), 3.0);
         let c = checks(&s, 0);
         assert!(c.rolling_stops >= 8, "{c:?}");
         assert_eq!(c.rolling_with_output, 0, "seed {seed}: {c:?}");

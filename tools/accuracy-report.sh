@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate docs/accuracy.md from docs/accuracy.tmpl.md with the figures of the code
-# in this tree (about 7 minutes on 2 idle cores).
+# in this tree (about 10 minutes on 2 idle cores).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release -q
@@ -14,6 +14,27 @@ run bench accuracy --plots docs > "$tmp/base1"
 run bench accuracy --seeds 8 > "$tmp/base8"
 run bench accuracy --scenarios scenarios/realistic/*.toml --seeds 8 > "$tmp/real8"
 run bench accuracy --ablation > "$tmp/abl"
+# The realistic drives with one thing about the car or its sensors changed.
+sens() {
+    local name=$1 file=$2; shift 2
+    local sets=(--set "name=\"$name\"")
+    for s in "$@"; do sets+=(--set "$s"); done
+    run bench accuracy --scenarios "scenarios/realistic/$file.toml" --seeds 4 "${sets[@]}"
+}
+{
+    sens "urban, as shipped" urban
+    sens "urban, IMU at 50 Hz" urban sensors.imu_rate_hz=50
+    sens "urban, IMU at 200 Hz" urban sensors.imu_rate_hz=200
+    sens "urban, accelerometer 500 ug/rtHz" urban sensors.acc_noise_ug_rthz=500
+    sens "urban, 5 % of IMU frames lost" urban sensors.imu_drop_prob=0.05
+    sens "urban, soft suspension" urban "realistic.pitch_freq_hz=[1.0, 1.1]" \
+        "realistic.pitch_damping=[0.15, 0.25]" "realistic.pitch_per_accel_deg=[0.3, 0.45]"
+    sens "urban, IMU 1.5 m ahead, left, high" urban "realistic.lever_arm_m=[1.5, -0.6, 0.7]"
+    sens "urban, gentle braking (0.4-0.8 m/s^2)" urban "brake_mps2=[0.4, 0.8]"
+    sens "stop-and-go, gentle braking (0.4-0.8 m/s^2)" stop-and-go "brake_mps2=[0.4, 0.8]"
+    sens "urban, wheels zero below 3 km/h" urban sensors.wheel_zero_below_kmh=3.0
+    sens "stop-and-go, wheels zero below 3 km/h" stop-and-go sensors.wheel_zero_below_kmh=3.0
+} > "$tmp/sens"
 run bench accuracy --ablation --scenarios scenarios/realistic/*.toml --seeds 4 > "$tmp/ablreal"
 
 python3 - "$tmp" <<'PY'
@@ -23,7 +44,13 @@ tmp = pathlib.Path(sys.argv[1])
 def tables(name):
     """Markdown tables of a command's output, in order."""
     out, cur = [], []
-    for line in (tmp / name).read_text().splitlines():
+    lines = (tmp / name).read_text().splitlines()
+    for i, line in enumerate(lines):
+        # A header row (the separator follows it) starts a table even without a blank
+        # line before it: one command's output runs into the next one's.
+        header = i + 1 < len(lines) and lines[i + 1].startswith("| ---")
+        if header and cur:
+            out.append("\n".join(cur)); cur = []
         if line.startswith("|"):
             cur.append(line)
         elif cur:
@@ -33,6 +60,18 @@ def tables(name):
     return out
 
 real = tables("real8")
+sens = tables("sens")
+# leveld's row of every accuracy table, then every stop table's rows, under one header.
+def rows(ts, keep, row=lambda l: True):
+    head, body = None, []
+    for t in ts:
+        lines = t.splitlines()
+        if keep(lines[0]):
+            head = head or lines[:2]
+            body += [l for l in lines[2:] if row(l)]
+    return "\n".join(head + body)
+sens_acc = rows(sens, lambda h: "| method |" in h, lambda l: "| leveld |" in l)
+sens_stops = rows(sens, lambda h: "gentle drive-offs with a window" in h)
 abl = tables("abl")
 ablreal = tables("ablreal")
 text = pathlib.Path("docs/accuracy.tmpl.md").read_text()
@@ -42,6 +81,7 @@ fill = {
     "{{BASE8}}": tables("base8")[0],
     "{{REAL8}}": real[0],
     "{{REAL8STOPS}}": "\n\n".join(real[1:]),
+    "{{SENS}}": sens_acc + "\n\n" + sens_stops,
     "{{ABLATION}}": "## 4. What each part is worth\n\n"
         "`leveld bench accuracy --ablation` switches one part off at a time "
         "(`paper-like`: all of them off, with eq. 17). On the drive suite, one seed:\n\n"

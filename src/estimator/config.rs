@@ -39,9 +39,10 @@ pub struct EstimatorConfig {
     pub gravity_walk_mps2_rts: f64,
     /// Settled samples needed before the deceleration window is evaluated, s.
     pub settle_time_s: f64,
-    /// A window walk starts where the mean specific force over 0.05 s (at least 5 samples) last matched the
-    /// standstill mean within this, per axis, m/s^2. Constant braking has no variance,
-    /// so this, not the stillness test, finds the moment the car came to rest.
+    /// A window walk starts where the mean specific force over 0.05 s (at least 5
+    /// samples) last matched the standstill mean within this, per axis, m/s^2. Constant
+    /// braking has no variance, so this, not the stillness test, finds the moment the
+    /// car came to rest.
     pub rest_acc_tol_mps2: f64,
     /// While the wheels read zero, a standstill ends when the IMU sees the car pick up
     /// this much speed since it was last surely at rest (a drive-off or creep inside the

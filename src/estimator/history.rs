@@ -21,8 +21,9 @@ const KNOCK_MAX_DV_MPS: f64 = 0.05;
 const KNOCK_PEAK_DV_MPS: f64 = 0.1;
 const KNOCK_QUIET_S: f64 = 0.1;
 
-/// Span averaged where a walk looks for the car at rest, s (noise of one 100 Hz sample
-/// is about 0.03 m/s^2; five keep a single outlier from ending the rest).
+/// Span averaged where a walk looks for the car at rest, s, and the fewest samples
+/// averaged (noise of one 100 Hz sample is about 0.03 m/s^2; five keep a single
+/// outlier from ending the rest).
 const REST_AVG_S: f64 = 0.05;
 const REST_AVG_MIN: usize = 5;
 /// Most samples `REST_AVG_S` may span (the buffers that hold them), 200 Hz and more.
@@ -78,7 +79,8 @@ impl Estimator {
     }
 
     /// Walking back from the newest sample, the index of the earliest sample of the
-    /// trailing run whose mean specific force over `rest_avg` samples matches `f_rest` (not before `floor`).
+    /// trailing run whose mean specific force over `rest_avg` samples matches `f_rest`
+    /// (not before `floor`).
     pub(super) fn rest_edge(&self, f_rest: &Vector3<f64>, floor: usize) -> usize {
         let avg = self.rest_avg();
         let n = self.hist.len();
@@ -388,8 +390,8 @@ impl Estimator {
     /// integrated acceleration between them; the mean over `REST_VELOCITY_S` averages
     /// out gyro noise (a single sample's noise times a 2 m lever arm costs about 0.1 deg
     /// of slope). Smoothing the rate at `i` itself instead is biased right at the stop,
-    /// where the rocking starts with a kink. The first `SKIP` samples are left out in
-    /// case `i` is a step early.
+    /// where the rocking starts with a kink. The samples of the first 0.02 s are left out
+    /// in case `i` is a step early.
     pub(super) fn rest_velocity(
         &self,
         q_i: UnitQuaternion<f64>,
