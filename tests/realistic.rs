@@ -83,11 +83,7 @@ fn gentle_drive_offs_in_the_wheel_dead_zone_give_unbiased_windows() {
         ok += c.gentle_accepted;
         errs.extend(c.window_errors);
     }
-    assert!(n >= 16, "{n} gentle drive-offs");
-    assert!(
-        ok as f64 >= 0.9 * n as f64,
-        "{ok} of {n} gentle drive-offs gave a window"
-    );
+    assert_most_gentle_drive_offs_gave_windows(n, ok);
     // Before the IMU ended the standstill, drive-off samples joined the reference and
     // these windows sat about +0.2 deg off.
     assert_unbiased(&errs, 0.25);
@@ -107,15 +103,20 @@ fn gentle_stops_whose_end_the_wheel_dead_zone_hides_are_not_taken_for_rest_while
         ok += c.gentle_accepted;
         errs.extend(c.window_errors);
     }
+    assert_most_gentle_drive_offs_gave_windows(n, ok);
+    let worst = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+    // Four times the 0.25 deg spread of single windows on these drives.
+    assert!(worst <= 1.0, "a window {worst:.2} deg off: {errs:?}");
+    assert_unbiased(&errs, 0.25);
+}
+
+/// Of `n` gentle drive-offs, at least 16, `ok` gave a window: 90 % or more.
+fn assert_most_gentle_drive_offs_gave_windows(n: usize, ok: usize) {
     assert!(n >= 16, "{n} gentle drive-offs");
     assert!(
         ok as f64 >= 0.9 * n as f64,
         "{ok} of {n} gentle drive-offs gave a window"
     );
-    let worst = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
-    // Four times the 0.25 deg spread of single windows on these drives.
-    assert!(worst <= 1.0, "a window {worst:.2} deg off: {errs:?}");
-    assert_unbiased(&errs, 0.25);
 }
 
 /// The mean of `errs` is within three standard errors of zero, for single windows of
