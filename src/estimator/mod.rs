@@ -323,6 +323,7 @@ impl Estimator {
                 if quiet && v < MOTION_PAUSE_SHARE * self.cfg.drive_off_speed_mps {
                     self.update_standstill(&s, emit);
                 }
+                self.close_stale_block(s.t_s, emit);
                 self.track_live_pitch(s.t_s);
             }
         } else if let (true, Some(q0), Some(w0)) = (

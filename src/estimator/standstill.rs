@@ -49,6 +49,11 @@ fn turn_matches(force_step_rad: f64, gyro_turn_rad: f64, scale_rad: f64) -> bool
         <= TURN_MATCH_TOL_RAD + TURN_MATCH_SHARE * scale_rad.abs()
 }
 
+/// A stop that never settled must have lasted this long for a turn of the body to be
+/// taken as a load change, s: a load ramps in over seconds, and 2.5 s after a stop even
+/// a soft suspension (1 Hz, damping 0.15) has let the dive's swing fall to a tenth.
+const UNSETTLED_LOAD_MIN_S: f64 = 2.5;
+
 /// A turn of the body at rest that began at least this long before the drive-off's
 /// start is a load coming in, not the squat of the drive-off, s.
 const LOAD_TURN_LEAD_S: f64 = 0.5;
@@ -450,6 +455,28 @@ impl Estimator {
         }
     }
 
+    /// Close the current block once no quiet sample can still join it. A pause of
+    /// `BLOCK_GAP_S` ends a block, but the block used to see the pause only when the
+    /// next quiet sample came. A load ramping in right after the first block of a stop
+    /// leaves no quiet sample until the ramp ends: the block stayed open through the
+    /// ramp, the stop had no settled reference, and the live pitch could not follow the
+    /// ramp. Quiet samples wait `2 * still_window_s` before they join the blocks, so
+    /// once that and the pause have passed with none waiting inside the pause, none can
+    /// still come.
+    pub(super) fn close_stale_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
+        let lag = 2.0 * self.cfg.still_window_s;
+        let Some(st) = self.standstill else { return };
+        if st.block_n >= MIN_SETTLED_SAMPLES
+            && t_s - st.block_last_s > lag + BLOCK_GAP_S
+            && self
+                .settle_queue
+                .front()
+                .is_none_or(|x| x.t_s - st.block_last_s > BLOCK_GAP_S)
+        {
+            self.close_block(st.block_last_s, emit);
+        }
+    }
+
     /// Close a partial block (at the end of a stop or of the input) if it holds enough
     /// samples to compare.
     pub(super) fn flush_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
@@ -573,6 +600,35 @@ impl Estimator {
             .then_some(turn)
     }
 
+    /// A load that turned the body through a whole stop of at least
+    /// `UNSETTLED_LOAD_MIN_S`: the ramp kept every sample from settling, so neither the
+    /// blocks nor the live pitch had a reference. The gyro's turn from the start of the
+    /// standstill to the drive-off's first sample `first` is the step when the force
+    /// over the samples before `first` turned with it, by at least twice the threshold.
+    /// The length keeps out the body still swinging after a short stop.
+    fn turn_without_settling(&self, st: &Standstill, first: usize, t_now: f64) -> Option<f64> {
+        if t_now - st.t_rest_s < UNSETTLED_LOAD_MIN_S {
+            return None;
+        }
+        let q_begin = attitude_from_gravity(&st.f_begin)?;
+        let n = self.hist.len();
+        // `f_begin` is the mean of the quarter second before the start.
+        let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
+        let to = first.min(n - 1);
+        if to <= from {
+            return None;
+        }
+        let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
+        let k = self.rest_avg().min(to - from);
+        let f = (to + 1 - k..=to).fold(Vector3::zeros(), |f, j| {
+            f + self.hist.get(j).acc() - self.lever_acc_at(j)
+        });
+        let sf = pitch_from(&(f / k as f64))? - pitch_of(&q_begin);
+        let thr = 2.0 * self.cfg.load_change_deg.to_radians();
+        (turn.abs() > thr && sf.signum() == turn.signum() && turn_matches(sf, turn, turn))
+            .then_some(turn)
+    }
+
     /// Follow the body's pitch at rest with the gyro from the settled reference (see
     /// `LivePitch`). The estimate shows the difference once it has stood beyond the
     /// load-change threshold for `LIVE_PITCH_PERSIST_S`; the settled blocks or the
@@ -667,6 +723,19 @@ impl Estimator {
         } else {
             self.drive_off_start_rocking(floor)
         };
+        // A load that ramped in through the whole of a stop: the body never settled, and
+        // the car pulls away as the ramp ends.
+        if !settled && let Some(turn) = self.turn_without_settling(&st, first, t_now) {
+            let pitch = pitch_from(&st.f_begin).unwrap_or(0.0) + turn;
+            self.apply_load_change(turn, pitch, t_now, emit);
+            if st.moved {
+                let r = Err(RejectReason::NotStill);
+                self.report_window(r, Condition::DecelBeforeStop, 0.0, t_now, emit);
+            }
+            let r = Err(RejectReason::NotStill);
+            self.report_window(r, Condition::AccelAfterStop, pitch, t_now, emit);
+            return;
+        }
         // A load still ramping in when the car pulls away: no sample after the turn
         // began is at rest by the pitch rate. Compare the force alone then, unless the
         // turn began with the drive-off (the body squats as it pulls away).
