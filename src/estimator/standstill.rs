@@ -583,47 +583,43 @@ impl Estimator {
     /// moved with it. Returns the turn, rad, when both agree on at least twice the
     /// load-change threshold (twice: the body may still rock a little at the start).
     fn turn_before_settling(&self, st: &Standstill, settled_pitch_rad: f64) -> Option<f64> {
-        let q_begin = attitude_from_gravity(&st.f_begin)?;
-        let n = self.hist.len();
-        // `f_begin` is the mean of the quarter second before the start.
-        let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
-        let to = self
-            .index_at(0.5 * (st.seg_first_s + st.seg_last_s))
-            .min(n - 1);
-        if to <= from {
-            return None;
-        }
-        let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
-        let sf = settled_pitch_rad - pitch_of(&q_begin);
-        let thr = 2.0 * self.cfg.load_change_deg.to_radians();
-        (turn.abs() > thr && sf.signum() == turn.signum() && turn_matches(sf, turn, turn))
-            .then_some(turn)
+        let mid = self.index_at(0.5 * (st.seg_first_s + st.seg_last_s));
+        self.turn_since_begin(st, mid, settled_pitch_rad)
     }
 
     /// A load that turned the body through a whole stop of at least
     /// `UNSETTLED_LOAD_MIN_S`: the ramp kept every sample from settling, so neither the
     /// blocks nor the live pitch had a reference. The gyro's turn from the start of the
     /// standstill to the drive-off's first sample `first` is the step when the force
-    /// over the samples before `first` turned with it, by at least twice the threshold.
-    /// The length keeps out the body still swinging after a short stop.
+    /// over the samples before `first` turned with it (as `turn_before_settling`). The
+    /// length keeps out the body still swinging after a short stop.
     fn turn_without_settling(&self, st: &Standstill, first: usize, t_now: f64) -> Option<f64> {
         if t_now - st.t_rest_s < UNSETTLED_LOAD_MIN_S {
             return None;
         }
+        let to = first.min(self.hist.len() - 1);
+        let k = self.rest_avg().min(to);
+        let f = (to + 1 - k..=to).fold(Vector3::zeros(), |f, j| {
+            f + self.hist.get(j).acc() - self.lever_acc_at(j)
+        });
+        self.turn_since_begin(st, to, pitch_from(&(f / k as f64))?)
+    }
+
+    /// The gyro's turn of the body from the start of the standstill to history sample
+    /// `to`, rad, when the force's pitch there (`force_pitch_rad`) moved with it by at
+    /// least twice the load-change threshold (twice: the body may still rock a little at
+    /// the start).
+    fn turn_since_begin(&self, st: &Standstill, to: usize, force_pitch_rad: f64) -> Option<f64> {
         let q_begin = attitude_from_gravity(&st.f_begin)?;
         let n = self.hist.len();
         // `f_begin` is the mean of the quarter second before the start.
         let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
-        let to = first.min(n - 1);
+        let to = to.min(n - 1);
         if to <= from {
             return None;
         }
         let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
-        let k = self.rest_avg().min(to - from);
-        let f = (to + 1 - k..=to).fold(Vector3::zeros(), |f, j| {
-            f + self.hist.get(j).acc() - self.lever_acc_at(j)
-        });
-        let sf = pitch_from(&(f / k as f64))? - pitch_of(&q_begin);
+        let sf = force_pitch_rad - pitch_of(&q_begin);
         let thr = 2.0 * self.cfg.load_change_deg.to_radians();
         (turn.abs() > thr && sf.signum() == turn.signum() && turn_matches(sf, turn, turn))
             .then_some(turn)
