@@ -678,9 +678,16 @@ fn a_speed_bump_past_the_stop_line_rejects_the_window_it_bends() {
     );
 }
 
-/// The load step leveld applied at the load stop of drives with `r` (at the stop or as
-/// the car pulls away, not windows later) minus the true step, deg, one per seed.
-fn load_step_errors(r: &RealisticSpec, seeds: std::ops::Range<u64>) -> Vec<f64> {
+/// The load step leveld applied at the load stop (at the stop or as the car pulls
+/// away, not windows later) minus the true step, deg, one per seed. Every stop is left
+/// gently; the load stop lasts `hold_s` and its ramp starts `delay_s` into it.
+fn load_step_errors(hold_s: [f64; 2], delay_s: [f64; 2], seeds: std::ops::Range<u64>) -> Vec<f64> {
+    let r = RealisticSpec {
+        load_stop_short_share: 1.0,
+        load_stop_short_hold_s: hold_s,
+        load_change_delay_s: delay_s,
+        ..gentle()
+    };
     let mut errs = Vec::new();
     for seed in seeds {
         let mut s = spec(seed, 6, r.clone());
@@ -727,26 +734,14 @@ fn a_load_ramping_in_through_a_whole_stop_is_measured_as_the_car_pulls_away() {
     // The load starts to ramp in 1.0-1.2 s into a stop of 4.0-4.3 s, as the standstill
     // begins, and the car pulls away as the ramp ends: no sample of the stop settles.
     // Such a stop used to give no load change at all.
-    let r = RealisticSpec {
-        load_stop_short_share: 1.0,
-        load_stop_short_hold_s: [4.0, 4.3],
-        load_change_delay_s: [1.0, 1.2],
-        ..gentle()
-    };
-    assert_load_steps_measured(&load_step_errors(&r, 61..67));
+    assert_load_steps_measured(&load_step_errors([4.0, 4.3], [1.0, 1.2], 61..67));
 }
 
 #[test]
 fn a_load_ramping_in_after_the_first_quiet_moment_of_a_stop_is_followed_to_drive_off() {
-    // The ramp starts 1.6-2.0 s into the stop, after the first few quiet samples, and
-    // ends as the car pulls away. The block holding those samples used to stay open
+    // The ramp starts 1.3-1.5 s into a stop of 4.3-4.6 s, after the first few quiet
+    // samples, and ends as the car pulls away. The block holding those samples used to stay open
     // through the ramp, as no further quiet sample came to close it: the stop had no
     // settled reference, and the live pitch could not follow the ramp.
-    let r = RealisticSpec {
-        load_stop_short_share: 1.0,
-        load_stop_short_hold_s: [4.3, 4.6],
-        load_change_delay_s: [1.3, 1.5],
-        ..gentle()
-    };
-    assert_load_steps_measured(&load_step_errors(&r, 71..77));
+    assert_load_steps_measured(&load_step_errors([4.3, 4.6], [1.3, 1.5], 71..77));
 }
