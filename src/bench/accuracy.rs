@@ -91,6 +91,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         derotated_motion_anchor: false,
         ..d()
     };
+    let no_swing_gate = EstimatorConfig {
+        rest_swing_gate_mps2: 1e3,
+        ..d()
+    };
     let no_imu_drive_off = EstimatorConfig {
         drive_off_speed_mps: 1e3,
         ..d()
@@ -111,6 +115,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         pair_stop_windows: false,
         short_stop_windows: false,
         derotated_motion_anchor: false,
+        rest_swing_gate_mps2: 1e3,
         ..d()
     };
     vec![
@@ -136,6 +141,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_short_stops, "no-short-stop-windows")),
         Box::new(Leveld::new(short_full_weight, "short-stops-full-weight")),
         Box::new(Leveld::new(raw_anchor, "raw-motion-anchor")),
+        Box::new(Leveld::new(no_swing_gate, "no-rest-swing-gate")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

@@ -116,6 +116,15 @@ pub struct EstimatorConfig {
     /// mean force turned by the gyro into the body frame at its own sample, not on the
     /// raw mean, which lags a body still rocking by its rate times half the window.
     pub derotated_motion_anchor: bool,
+    /// A settled sample whose lever-arm acceleration, as the gyro shows it, exceeds this
+    /// stays out of the gravity reference (the stop's mean force and the gravity
+    /// magnitude), m/s^2. The lever-arm model is smoothed over 11 gyro samples and leaves
+    /// part of a door shock's 5-8 Hz swing in the force; a shock's tail passes the
+    /// stillness test. 0.05 is about five times what a gyro noise of 0.01 deg/s/sqrt(Hz)
+    /// shows at a 2 m arm. A block of quiet samples with fewer than a quarter of them
+    /// below the gate keeps them all (a noisy gyro must not leave a stop without
+    /// reference).
+    pub rest_swing_gate_mps2: f64,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -162,6 +171,7 @@ impl Default for EstimatorConfig {
             short_stop_windows: true,
             short_stop_weight: 0.28,
             derotated_motion_anchor: true,
+            rest_swing_gate_mps2: 0.05,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,
@@ -238,6 +248,7 @@ impl EstimatorConfig {
         pos("still_acc_std_mps2", self.still_acc_std_mps2)?;
         pos("still_gyro_dps", self.still_gyro_dps)?;
         pos("still_gyro_std_dps", self.still_gyro_std_dps)?;
+        pos("rest_swing_gate_mps2", self.rest_swing_gate_mps2)?;
         pos("bias_gate_dps", self.bias_gate_dps)?;
         pos("rest_acc_tol_mps2", self.rest_acc_tol_mps2)?;
         pos("settle_time_s", self.settle_time_s)?;

@@ -84,6 +84,10 @@ pub(super) struct Standstill {
     pub(super) seg_last_s: f64,
     pub(super) block_sum: Vector3<f64>,
     pub(super) block_n: u64,
+    /// Sum and count of the block's samples whose lever-arm motion stayed below
+    /// `rest_swing_gate_mps2`: the block's mean when enough of them passed.
+    pub(super) block_calm_sum: Vector3<f64>,
+    pub(super) block_calm_n: u64,
     pub(super) block_t0_s: f64,
     /// Time of the newest sample in the block, s.
     pub(super) block_last_s: f64,
@@ -130,6 +134,22 @@ pub(super) struct LivePitch {
 }
 
 impl Standstill {
+    /// Force sum and sample count the current block stands for: its calm samples when
+    /// at least a quarter of them (and `MIN_SETTLED_SAMPLES`) are calm, else all.
+    pub(super) fn block_force(&self) -> (Vector3<f64>, u64) {
+        if self.block_calm_n >= MIN_SETTLED_SAMPLES && 4 * self.block_calm_n >= self.block_n {
+            (self.block_calm_sum, self.block_calm_n)
+        } else {
+            (self.block_sum, self.block_n)
+        }
+    }
+    pub(super) fn clear_block(&mut self) {
+        self.block_sum = Vector3::zeros();
+        self.block_calm_sum = Vector3::zeros();
+        self.block_gyro_sum = Vector3::zeros();
+        self.block_n = 0;
+        self.block_calm_n = 0;
+    }
     pub(super) fn mean(&self) -> Vector3<f64> {
         self.seg_sum / self.seg_n.max(1) as f64
     }
@@ -273,6 +293,8 @@ impl Estimator {
             seg_last_s: t_now,
             block_sum: Vector3::zeros(),
             block_n: 0,
+            block_calm_sum: Vector3::zeros(),
+            block_calm_n: 0,
             block_t0_s: t_now,
             block_last_s: t_now,
             pending: None,
@@ -321,8 +343,12 @@ impl Estimator {
     pub(super) fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
         // The gravity reference is the specific force of the pitch centre: what the IMU
         // would read without the rocking tail.
-        let f = s.acc() - self.lever_acc_at(self.index_at(s.t_s));
-        self.update_gravity(s.t_s, &f);
+        let swing = self.lever_acc_at(self.index_at(s.t_s));
+        let f = s.acc() - swing;
+        let calm = swing.norm() <= self.cfg.rest_swing_gate_mps2;
+        if calm {
+            self.update_gravity(s.t_s, &f);
+        }
         let Some(st) = self.standstill.as_mut() else {
             self.update_bias(s);
             return;
@@ -335,9 +361,7 @@ impl Estimator {
                 let t_last = st.block_last_s;
                 self.close_block(t_last, emit);
             } else {
-                st.block_sum = Vector3::zeros();
-                st.block_gyro_sum = Vector3::zeros();
-                st.block_n = 0;
+                st.clear_block();
             }
         }
         let Some(st) = self.standstill.as_mut() else {
@@ -349,6 +373,10 @@ impl Estimator {
         st.block_gyro_sum += s.gyro_rps();
         st.block_sum += f;
         st.block_n += 1;
+        if calm {
+            st.block_calm_sum += f;
+            st.block_calm_n += 1;
+        }
         st.block_last_s = s.t_s;
         if s.t_s - st.block_t0_s >= self.cfg.load_block_s {
             self.close_block(s.t_s, emit);
@@ -379,19 +407,18 @@ impl Estimator {
         if st.block_n == 0 {
             return;
         }
-        let (block, block_n, block_t0) = (st.block_sum, st.block_n, st.block_t0_s);
-        let block_last = st.block_last_s;
-        let gyro_mean = st.block_gyro_sum / block_n as f64;
-        st.block_sum = Vector3::zeros();
-        st.block_gyro_sum = Vector3::zeros();
-        st.block_n = 0;
+        let (block, block_n) = st.block_force();
+        let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
+        let gyro_mean = st.block_gyro_sum / st.block_n as f64;
+        let gyro_n = st.block_n;
+        st.clear_block();
         st.block_t0_s = t_s;
         if st.seg_n == 0 {
             st.seg_sum = block;
             st.seg_n = block_n;
             st.seg_first_s = block_t0;
             st.seg_last_s = block_last;
-            self.update_bias_block(&gyro_mean, block_n);
+            self.update_bias_block(&gyro_mean, gyro_n);
             return;
         }
         let block_mean = block / block_n as f64;
@@ -403,7 +430,7 @@ impl Estimator {
             st.seg_n += block_n;
             st.seg_last_s = block_last;
             st.pending = None;
-            self.update_bias_block(&gyro_mean, block_n);
+            self.update_bias_block(&gyro_mean, gyro_n);
             return;
         }
         match st.pending.take() {
