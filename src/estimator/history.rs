@@ -106,15 +106,9 @@ impl Estimator {
     /// matches the standstill reference `g_mean`, and the body does not pitch. A driver
     /// ramps the acceleration in, and the body starts to squat with it: where the force
     /// first departs, the IMU 2 m ahead of the pitch centre already moves with the
-    /// pitch rate, which a walk started there would miss.
-    /// With `load_turning`, a load still ramping in turns the body at rest: the pitch
-    /// rate then says nothing about the drive-off, and only the force is compared.
-    pub(super) fn drive_off_start(
-        &self,
-        g_mean: &Vector3<f64>,
-        floor: usize,
-        load_turning: bool,
-    ) -> usize {
+    /// pitch rate, which a walk started there would miss. A body turning at rest (a
+    /// load ramping in) has `drive_off_start_turned`.
+    pub(super) fn drive_off_start(&self, g_mean: &Vector3<f64>, floor: usize) -> usize {
         let n = self.hist.len();
         let bias_y = self.bias_rps.map_or(0.0, |b| b.y);
         let gate = self.cfg.bias_gate_dps.to_radians();
@@ -136,7 +130,7 @@ impl Estimator {
             if dev <= 2.0 * tol {
                 i_twice.get_or_insert(i);
             }
-            if dev <= tol && (load_turning || (wy / k - bias_y).abs() <= gate) {
+            if dev <= tol && (wy / k - bias_y).abs() <= gate {
                 i_rest = Some(i);
                 break;
             }
@@ -166,6 +160,30 @@ impl Estimator {
         let n = self.hist.len();
         let start = self.index_at(self.hist.get(floor).t_s + 0.1).min(n - 1);
         let ref_end = self.index_at(self.hist.get(start).t_s + ROCKING_REF_S);
+        self.derotated_drive_off(floor, start, ref_end, None)
+    }
+
+    /// `drive_off_start` for a settled stop whose body turned at rest after `floor`, the
+    /// last settled sample: a load ramping in. `reference` is the settled mean force,
+    /// freed of the lever-arm motion, in the body frame at `floor`; each later sample is
+    /// turned by the gyro into that frame, so the turn of the load leaves the force on
+    /// gravity and only the car's own acceleration departs from it. The raw force against
+    /// the turned body's gravity finds the drive-off late, once the squat has begun.
+    pub(super) fn drive_off_start_turned(&self, floor: usize, reference: Vector3<f64>) -> usize {
+        self.derotated_drive_off(floor, floor, floor, Some(reference - self.acc_bias_mps2()))
+    }
+
+    /// The newest start of a drive-off after `start`, on the force turned by the gyro into
+    /// the body frame at `start`: against `reference`, or the mean from `start` to
+    /// `ref_end` when `None`; `n - 1` when there is too little history after it.
+    fn derotated_drive_off(
+        &self,
+        floor: usize,
+        start: usize,
+        ref_end: usize,
+        given: Option<Vector3<f64>>,
+    ) -> usize {
+        let n = self.hist.len();
         let avg = self.rest_avg();
         if ref_end + avg >= n {
             return n - 1;
@@ -177,7 +195,7 @@ impl Estimator {
         // reference, then the trailing mean of `rest_avg` samples against it. Kept are
         // the newest sample whose mean matches within the tolerance, and within twice it.
         let mut q = UnitQuaternion::identity();
-        let mut reference = Vector3::zeros();
+        let mut reference = given.unwrap_or_else(Vector3::zeros);
         let mut recent = [Vector3::zeros(); REST_AVG_MAX];
         let mut sum = Vector3::zeros();
         let (mut i_twice, mut i_rest) = (None, None);
@@ -191,12 +209,14 @@ impl Estimator {
             let slot = (j - start) % avg;
             sum += f - recent[slot];
             recent[slot] = f;
-            if j < ref_end {
-                reference += f;
-                continue;
-            }
-            if j == ref_end {
-                reference /= (ref_end - start) as f64;
+            if given.is_none() {
+                if j < ref_end {
+                    reference += f;
+                    continue;
+                }
+                if j == ref_end {
+                    reference /= (ref_end - start) as f64;
+                }
             }
             let dev = (sum / avg as f64 - reference).amax();
             if dev <= 2.0 * tol {
@@ -598,7 +618,7 @@ mod tests {
             // Against the raw force of the first rest samples (and the pitch rate), the
             // rocking puts the drive-off far from where it was.
             let f0 = est.hist.get(0).acc();
-            let raw = est.hist.get(est.drive_off_start(&f0, 0, false)).t_s;
+            let raw = est.hist.get(est.drive_off_start(&f0, 0)).t_s;
             assert!((raw - drive_off_s).abs() > 0.3, "raw {raw:.2} s");
         }
     }

@@ -54,15 +54,16 @@ fn turn_matches(force_step_rad: f64, gyro_turn_rad: f64, scale_rad: f64) -> bool
 /// a soft suspension (1 Hz, damping 0.15) has let the dive's swing fall to a tenth.
 const UNSETTLED_LOAD_MIN_S: f64 = 2.5;
 
-/// A turn of the body at rest that began at least this long before the drive-off's
-/// start is a load coming in, not the squat of the drive-off, s.
-const LOAD_TURN_LEAD_S: f64 = 0.5;
-
 /// Only the windows of a stop shorter than this are paired (see `pair_stop_windows`):
 /// over 16 seeds of each realistic scenario the errors of a stop's two windows
 /// correlate at -0.7 to -0.95 under 4 s of hold, -0.1 to -0.55 at 4-8 s, and not at
 /// all beyond, where the reference rests on enough quiet samples. s.
 const PAIR_MAX_HOLD_S: f64 = 8.0;
+
+/// A quiet sample still waiting to join the reference joins once it is this old and
+/// the standstill goes on, s: the IMU's motion tracker ends a standstill within a few
+/// tenths of a second of a drive-off (0.06 m/s at 0.3 m/s^2 is 0.2 s).
+const QUEUE_STALE_S: f64 = 1.0;
 
 /// A pause this long in the quiet samples ends a load block, s.
 const BLOCK_GAP_S: f64 = 0.1;
@@ -492,6 +493,22 @@ impl Estimator {
     /// still come.
     pub(super) fn close_stale_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
         let lag = 2.0 * self.cfg.still_window_s;
+        // A quiet sample waits for a later quiet one `lag` after it before it joins, so
+        // the last ones before a drive-off stay out. When the body turns instead (a load
+        // ramping in right after the first quiet moment of a stop), no quiet sample comes
+        // until the ramp ends, and the stop has no reference to follow the ramp from. A
+        // drive-off ends the standstill well within `QUEUE_STALE_S`; a sample that old
+        // with the car still at rest was at rest. Only a stop with no reference yet takes
+        // them: they are the last before the turn began, and a reference that has its
+        // own quiet samples is better off without them.
+        while let Some(x) = self.settle_queue.front().copied() {
+            let unsettled = self.standstill.is_some_and(|st| st.seg_n == 0);
+            if !unsettled || t_s - x.t_s < lag.max(QUEUE_STALE_S) {
+                break;
+            }
+            self.settle_queue.pop_front();
+            self.commit_settled(&x, emit);
+        }
         let Some(st) = self.standstill else { return };
         if st.block_n >= MIN_SETTLED_SAMPLES
             && t_s - st.block_last_s > lag + BLOCK_GAP_S
@@ -742,7 +759,7 @@ impl Estimator {
             self.index_at(st.t_braked_s)
         };
         let mut first = if settled {
-            self.drive_off_start(&g_mean, floor, false)
+            self.drive_off_start(&g_mean, floor)
         } else {
             self.drive_off_start_rocking(floor)
         };
@@ -759,13 +776,13 @@ impl Estimator {
             self.report_window(r, Condition::AccelAfterStop, pitch, t_now, emit);
             return;
         }
-        // A load still ramping in when the car pulls away: no sample after the turn
-        // began is at rest by the pitch rate. Compare the force alone then, unless the
-        // turn began with the drive-off (the body squats as it pulls away).
-        if let Some(t_turn) = st.live.beyond_since_s.filter(|_| settled && live_active)
-            && self.hist.get(first).t_s < t_turn - LOAD_TURN_LEAD_S
-        {
-            first = self.drive_off_start(&g_mean, floor, true);
+        // A load that turned the body after the stop settled: no sample after the turn
+        // began is at rest by the pitch rate, and the raw force matches the turned
+        // body's gravity only once the squat has begun. The force turned back by the
+        // gyro into the settled frame finds the drive-off before the squat.
+        if settled && live_active {
+            let seg_last = self.index_at(st.seg_last_s).min(n - 1);
+            first = self.drive_off_start_turned(seg_last, st.mean());
         }
         let q_ref = if settled {
             attitude_from_gravity(&st.mean()).map(|q| {
