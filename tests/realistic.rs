@@ -745,3 +745,29 @@ fn a_load_ramping_in_after_the_first_quiet_moment_of_a_stop_is_followed_to_drive
     // settled reference, and the live pitch could not follow the ramp.
     assert_load_steps_measured(&load_step_errors([4.3, 4.6], [1.3, 1.5], 71..77));
 }
+
+#[test]
+fn a_rest_swing_gate_below_the_gyros_noise_still_gives_every_stop_its_reference() {
+    // The gate that keeps a door shock's swing out of the gravity reference (0.05 m/s^2)
+    // is about five times the swing a 0.01 deg/s/sqrt(Hz) gyro shows at a 2 m arm. A gate
+    // far below that noise (as a noisier gyro makes the default) passes hardly a sample:
+    // the blocks and the gravity filter then take every settled sample, and the drive
+    // gives the windows it gives without the gate.
+    let errors = |s: &DriveSpec, gate: f64| {
+        let cfg = EstimatorConfig {
+            rest_swing_gate_mps2: gate,
+            ..EstimatorConfig::default()
+        };
+        window_errors(&s.cases()[0], cfg, None)
+    };
+    for seed in 1..4 {
+        let s = spec(seed, 8, RealisticSpec::default());
+        let (gated, ungated) = (errors(&s, 0.001), errors(&s, 1e3));
+        eprintln!("seed {seed}: with the gate {gated:+.3?}, without {ungated:+.3?}");
+        assert!(ungated.len() >= 8, "seed {seed}: {} windows", ungated.len());
+        assert_eq!(gated.len(), ungated.len(), "seed {seed}");
+        let rms = |e: &[f64]| (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt();
+        // Single windows are about 0.2 deg rms on these drives.
+        assert!(rms(&gated) <= rms(&ungated) + 0.05, "seed {seed}");
+    }
+}

@@ -173,9 +173,10 @@ impl Estimator {
         self.derotated_drive_off(floor, floor, floor, Some(reference - self.acc_bias_mps2()))
     }
 
-    /// The newest start of a drive-off after `start`, on the force turned by the gyro into
-    /// the body frame at `start`: against `reference`, or the mean from `start` to
-    /// `ref_end` when `None`; `n - 1` when there is too little history after it.
+    /// The newest start of a drive-off after `start` (not before `floor`), on the force
+    /// turned by the gyro into the body frame at `start`: against `given`, or against the
+    /// mean from `start` to `ref_end` when `None`; `n - 1` when there is too little
+    /// history after it.
     fn derotated_drive_off(
         &self,
         floor: usize,

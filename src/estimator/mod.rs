@@ -64,6 +64,10 @@ pub struct Estimator {
     /// Settled specific-force magnitude, the g of eq. 12-13: measured rather than
     /// nominal so that an accelerometer bias along z cancels.
     gravity: Option<GravityFilter>,
+    /// Share of the recent settled samples below `rest_swing_gate_mps2` (a running
+    /// mean over about 50 samples): under a quarter, the gyro's noise alone exceeds the
+    /// gate, and the gravity filter takes every settled sample.
+    calm_share: f64,
     /// The same model fed one settled stop at a time with an honest variance: the
     /// accelerometer bias the windows remove (`acc_bias_mps2`).
     stop_bias: Option<GravityFilter>,
@@ -148,6 +152,7 @@ impl Estimator {
             ),
             sample_dt_s: (NOMINAL_SAMPLE_DT_S, 0),
             gravity: None,
+            calm_share: 1.0,
             stop_bias: None,
             fwd: WindowIntegrator::with_capacity(win_cap),
             fwd_ctx: None,

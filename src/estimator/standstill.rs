@@ -65,6 +65,13 @@ const PAIR_MAX_HOLD_S: f64 = 8.0;
 /// tenths of a second of a drive-off (0.06 m/s at 0.3 m/s^2 is 0.2 s).
 const QUEUE_STALE_S: f64 = 1.0;
 
+/// Settled samples below `rest_swing_gate_mps2` stand for the gravity reference when at
+/// least this share of them is below it; fewer, and the gyro's noise alone exceeds the
+/// gate (a gyro noisier than it is sized for), so all of them do.
+const CALM_SHARE_MIN: f64 = 0.25;
+/// Gain of the running share of calm samples the gravity filter looks at, per sample.
+const CALM_SHARE_GAIN: f64 = 0.02;
+
 /// A pause this long in the quiet samples ends a load block, s.
 const BLOCK_GAP_S: f64 = 0.1;
 
@@ -138,7 +145,9 @@ impl Standstill {
     /// Force sum and sample count the current block stands for: its calm samples when
     /// at least a quarter of them (and `MIN_SETTLED_SAMPLES`) are calm, else all.
     pub(super) fn block_force(&self) -> (Vector3<f64>, u64) {
-        if self.block_calm_n >= MIN_SETTLED_SAMPLES && 4 * self.block_calm_n >= self.block_n {
+        if self.block_calm_n >= MIN_SETTLED_SAMPLES
+            && self.block_calm_n as f64 >= CALM_SHARE_MIN * self.block_n as f64
+        {
             (self.block_calm_sum, self.block_calm_n)
         } else {
             (self.block_sum, self.block_n)
@@ -347,7 +356,8 @@ impl Estimator {
         let swing = self.lever_acc_at(self.index_at(s.t_s));
         let f = s.acc() - swing;
         let calm = swing.norm() <= self.cfg.rest_swing_gate_mps2;
-        if calm {
+        self.calm_share += (f64::from(u8::from(calm)) - self.calm_share) * CALM_SHARE_GAIN;
+        if calm || self.calm_share < CALM_SHARE_MIN {
             self.update_gravity(s.t_s, &f);
         }
         let Some(st) = self.standstill.as_mut() else {
