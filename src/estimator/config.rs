@@ -122,8 +122,9 @@ pub struct EstimatorConfig {
     /// part of a door shock's 5-8 Hz swing in the force; a shock's tail passes the
     /// stillness test. 0.05 is about five times what a gyro noise of 0.01 deg/s/sqrt(Hz)
     /// shows at a 2 m arm. A block of quiet samples with fewer than a quarter of them
-    /// below the gate keeps them all (a noisy gyro must not leave a stop without
-    /// reference).
+    /// below the gate keeps them all, and so does the gravity filter while fewer than a
+    /// quarter of its recent samples are below it (a gyro noisier than the gate is
+    /// sized for must not leave a stop without reference).
     pub rest_swing_gate_mps2: f64,
     /// How windows are combined.
     pub averaging: Averaging,
