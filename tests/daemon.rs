@@ -92,6 +92,15 @@ fn config_mistakes_name_the_file_and_field() {
     ));
     assert!(e.contains("short_stop_weight"), "{e}");
     let e = err_of(load_variant(
+        "gate",
+        &(reference_toml() + "rest_swing_gate_mps2 = -0.05\n"),
+        None,
+    ));
+    assert!(
+        e.contains("rest_swing_gate_mps2") && e.contains("greater than 0"),
+        "{e}"
+    );
+    let e = err_of(load_variant(
         "act",
         &reference_toml().replace("actuator_min_deg = -3.0", "actuator_min_deg = 5.0"),
         None,
