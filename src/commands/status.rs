@@ -143,9 +143,10 @@ fn write_report(out: &mut impl Write, r: &StatusReport, now: f64, running: bool)
     }
     writeln!(
         out,
-        "sent {} (dropped {}), windows accepted {} rejected {}, standstills {}, reconnects {}, bus-off {}, wall-clock steps {}",
+        "sent {} (dropped {}, {} of them on a full queue), windows accepted {} rejected {}, standstills {}, reconnects {}, bus-off {}, wall-clock steps {}",
         r.frames_sent,
         r.send_dropped,
+        r.send_queue_full,
         r.windows_accepted,
         r.windows_rejected,
         r.standstills,

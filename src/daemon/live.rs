@@ -375,6 +375,7 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
         "standstills": c.standstills,
         "sent": live.sent,
         "send_dropped": live.send_dropped,
+        "send_queue_full": live.send_queue_full,
         "reconnects": live.reconnects,
         "bus_off": live.bus_off,
         "wall_clock_steps": live.wall_clock_steps,

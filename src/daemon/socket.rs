@@ -41,7 +41,11 @@ const MAX_BACKOFF: Duration = Duration::from_secs(5);
 #[derive(Debug, Default, Clone, Copy)]
 pub struct LiveStats {
     pub sent: u64,
+    /// Frames not sent, for any reason (no interface, a full queue).
     pub send_dropped: u64,
+    /// Of those, the ones the kernel refused with a full queue while the interface
+    /// was open: the gaps a receiver sees in the alive counter.
+    pub send_queue_full: u64,
     pub reconnects: u64,
     pub bus_off: u64,
     pub error_passive: u64,
@@ -337,8 +341,13 @@ impl Bus for LiveBus {
             Ok(()) => self.count(|s| s.sent += 1),
             Err(e) => {
                 // ENOBUFS / EAGAIN: the queue is full; drop rather than wait.
-                self.count(|s| s.send_dropped += 1);
-                if !matches!(e.raw_os_error(), Some(libc::ENOBUFS) | Some(libc::EAGAIN)) {
+                if matches!(e.raw_os_error(), Some(libc::ENOBUFS) | Some(libc::EAGAIN)) {
+                    self.count(|s| {
+                        s.send_dropped += 1;
+                        s.send_queue_full += 1;
+                    });
+                } else {
+                    self.count(|s| s.send_dropped += 1);
                     self.output_failed = true;
                 }
             }

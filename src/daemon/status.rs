@@ -60,6 +60,9 @@ pub struct StatusReport {
     pub last_save: Option<SaveInfo>,
     pub frames_sent: u64,
     pub send_dropped: u64,
+    /// Of `send_dropped`, the frames refused by a full send queue.
+    #[serde(default)]
+    pub send_queue_full: u64,
     pub reconnects: u64,
     pub bus_off: u64,
     pub wall_clock_steps: u64,
@@ -128,6 +131,7 @@ pub fn report(p: &Pipeline, live: &LiveStats, cx: &Context) -> StatusReport {
         last_save: cx.last_save.cloned(),
         frames_sent: live.sent,
         send_dropped: live.send_dropped,
+        send_queue_full: live.send_queue_full,
         reconnects: live.reconnects,
         bus_off: live.bus_off,
         wall_clock_steps: live.wall_clock_steps,
