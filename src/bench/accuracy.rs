@@ -95,6 +95,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         rest_swing_gate_mps2: 1e3,
         ..d()
     };
+    let every_block_bias = EstimatorConfig {
+        still_blocks_teach_bias: false,
+        ..d()
+    };
     let no_imu_drive_off = EstimatorConfig {
         drive_off_speed_mps: 1e3,
         ..d()
@@ -142,6 +146,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(short_full_weight, "short-stops-full-weight")),
         Box::new(Leveld::new(raw_anchor, "raw-motion-anchor")),
         Box::new(Leveld::new(no_swing_gate, "no-rest-swing-gate")),
+        Box::new(Leveld::new(every_block_bias, "every-block-teaches-bias")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

@@ -11,6 +11,10 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// The speed check of a new standstill looks back at most this far to the last wheel
 /// reading with a speed, s.
 const REST_CHECK_SPAN_S: f64 = 6.0;
+/// A settled block teaches the gyro bias only when it began this long after the car
+/// came to rest: the body's swing back from its dive decays over about a second (1.3
+/// Hz at damping 0.2-0.4), and what is left of it has one sign over a block.
+const BIAS_SETTLE_S: f64 = 1.0;
 /// The speed the IMU says the car had at the last wheel reading with a speed may differ
 /// from that reading by this much, m/s (wheel quantisation and update interval, a
 /// body that still rocks).
@@ -429,7 +433,8 @@ impl Estimator {
             st.seg_n = block_n;
             st.seg_first_s = block_t0;
             st.seg_last_s = block_last;
-            self.update_bias_block(&gyro_mean, gyro_n);
+            let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
+            self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
         let block_mean = block / block_n as f64;
@@ -441,7 +446,8 @@ impl Estimator {
             st.seg_n += block_n;
             st.seg_last_s = block_last;
             st.pending = None;
-            self.update_bias_block(&gyro_mean, gyro_n);
+            let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
+            self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
         match st.pending.take() {

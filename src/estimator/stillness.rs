@@ -50,6 +50,25 @@ impl Estimator {
         acc_ok && gyro_ok && mean_ok
     }
 
+    /// Eq. 7 over a settled block that joined the stop's reference. Each of its samples
+    /// passed `bias_gate_dps` over its own short window, but the body swinging back from
+    /// its dive in the first second after the stop passes that gate with rates of one
+    /// sign all along, and a bias taught by it misses that much of every turn the gyro
+    /// carries afterwards. So a block teaches only when it began `BIAS_SETTLE_S` after
+    /// the car came to rest (`early` otherwise) and its own mean rate is within the gate
+    /// of the bias. With no bias yet, or `still_blocks_teach_bias` off, it teaches at once.
+    pub(super) fn teach_bias_block(&mut self, mean_rps: &Vector3<f64>, n: u64, early: bool) {
+        let gate = self.cfg.bias_gate_dps.to_radians();
+        let teach = match self.bias_rps {
+            None => true,
+            Some(_) if !self.cfg.still_blocks_teach_bias => true,
+            Some(b) => !early && (mean_rps - b).norm() <= gate,
+        };
+        if teach {
+            self.update_bias_block(mean_rps, n);
+        }
+    }
+
     /// Eq. 7 over a block of `n` samples whose mean rate was `mean_rps`: the same
     /// low-pass, stepped `n` times at once.
     pub(super) fn update_bias_block(&mut self, mean_rps: &Vector3<f64>, n: u64) {
