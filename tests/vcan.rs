@@ -203,14 +203,17 @@ impl Candump {
             .filter_map(|r| r.trim_end_matches(')').trim().parse::<u64>().ok())
             .max()
             .unwrap_or(0);
-        (read_frames(&self.path), drops)
+        (frames_of(&text), drops)
     }
 }
 
 fn read_frames(path: &Path) -> Vec<LogFrame> {
-    std::fs::read_to_string(path)
-        .unwrap()
-        .lines()
+    frames_of(&std::fs::read_to_string(path).unwrap())
+}
+
+/// The frames of candump log text; other lines (candump's own reports) are skipped.
+fn frames_of(text: &str) -> Vec<LogFrame> {
+    text.lines()
         .filter_map(|l| match parse_line(l) {
             Ok(Line::Frame(f)) => Some(f),
             _ => None,

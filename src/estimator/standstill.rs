@@ -426,6 +426,8 @@ impl Estimator {
         let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
         let gyro_mean = st.block_gyro_sum / st.block_n as f64;
         let gyro_n = st.block_n;
+        // Too soon after the stop to teach the bias: the body still swings back.
+        let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
         st.clear_block();
         st.block_t0_s = t_s;
         if st.seg_n == 0 {
@@ -433,7 +435,6 @@ impl Estimator {
             st.seg_n = block_n;
             st.seg_first_s = block_t0;
             st.seg_last_s = block_last;
-            let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
@@ -446,7 +447,6 @@ impl Estimator {
             st.seg_n += block_n;
             st.seg_last_s = block_last;
             st.pending = None;
-            let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
