@@ -99,6 +99,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         still_blocks_teach_bias: false,
         ..d()
     };
+    let fixed_gyro_gates = EstimatorConfig {
+        scale_gyro_gates: false,
+        ..d()
+    };
     let no_imu_drive_off = EstimatorConfig {
         drive_off_speed_mps: 1e3,
         ..d()
@@ -120,6 +124,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         short_stop_windows: false,
         derotated_motion_anchor: false,
         rest_swing_gate_mps2: 1e3,
+        scale_gyro_gates: false,
         ..d()
     };
     vec![
@@ -147,6 +152,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(raw_anchor, "raw-motion-anchor")),
         Box::new(Leveld::new(no_swing_gate, "no-rest-swing-gate")),
         Box::new(Leveld::new(every_block_bias, "every-block-teaches-bias")),
+        Box::new(Leveld::new(fixed_gyro_gates, "fixed-gyro-gates")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

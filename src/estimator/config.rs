@@ -34,6 +34,14 @@ pub struct EstimatorConfig {
     /// feed the bias filter (eq. 7) and the gravity reference, so body rocking after a
     /// stop and slow rotations (loading, doors) leak into neither, deg/s.
     pub bias_gate_dps: f64,
+    /// The gyro noise density `still_gyro_std_dps`, `still_gyro_dps` and
+    /// `bias_gate_dps` are sized for, deg/s/sqrt(Hz). A gyro learnt at rest to be
+    /// noisier widens them in proportion (`scale_gyro_gates`).
+    pub gyro_noise_dps_rthz: f64,
+    /// Widen the gyro gates with the noise learnt at rest. Off, a gyro noisier than
+    /// `gyro_noise_dps_rthz` fails the stillness and bias gates more and more often:
+    /// at five times that noise hardly a sample counts as settled.
+    pub scale_gyro_gates: bool,
     /// Random walk of the accelerometer bias along gravity (temperature drift), m/s^2
     /// per sqrt(s). Sets how long the standstill gravity magnitude is averaged.
     pub gravity_walk_mps2_rts: f64,
@@ -153,6 +161,8 @@ impl Default for EstimatorConfig {
             still_gyro_dps: 1.0,
             still_gyro_std_dps: 0.5,
             bias_gate_dps: 0.1,
+            gyro_noise_dps_rthz: 0.01,
+            scale_gyro_gates: true,
             rest_acc_tol_mps2: 0.1,
             settle_time_s: 3.0,
             drive_off_speed_mps: 0.06,
@@ -260,6 +270,7 @@ impl EstimatorConfig {
         pos("still_gyro_std_dps", self.still_gyro_std_dps)?;
         pos("rest_swing_gate_mps2", self.rest_swing_gate_mps2)?;
         pos("bias_gate_dps", self.bias_gate_dps)?;
+        pos("gyro_noise_dps_rthz", self.gyro_noise_dps_rthz)?;
         pos("rest_acc_tol_mps2", self.rest_acc_tol_mps2)?;
         pos("settle_time_s", self.settle_time_s)?;
         pos("drive_off_speed_mps", self.drive_off_speed_mps)?;

@@ -111,7 +111,7 @@ impl Estimator {
     pub(super) fn drive_off_start(&self, g_mean: &Vector3<f64>, floor: usize) -> usize {
         let n = self.hist.len();
         let bias_y = self.bias_rps.map_or(0.0, |b| b.y);
-        let gate = self.cfg.bias_gate_dps.to_radians();
+        let gate = self.bias_gate_rps();
         let tol = self.cfg.rest_acc_tol_mps2;
         // Newest index whose mean departs by at most twice the tolerance, then by at most
         // the tolerance (and the body does not pitch).

@@ -76,6 +76,8 @@ pub struct Estimator {
     /// The IMU's sample interval, s: the walks over the history count samples for
     /// spans given in seconds (`samples_in`); intervals in a row that disagree with it.
     sample_dt_s: (f64, u32),
+    /// The gyro's noise learnt at rest; the gyro gates grow with it.
+    gyro_noise: stillness::GyroNoise,
     /// The last stillness window was close enough to the bias to update it.
     bias_window_ok: bool,
     /// Mean specific force over the last stillness window, m/s^2.
@@ -140,6 +142,7 @@ impl Estimator {
             standstill: None,
             bias_rps: None,
             bias_window_ok: false,
+            gyro_noise: stillness::GyroNoise::default(),
             still_mean_acc: Vector3::zeros(),
             imu_moved: false,
             dead_zone_motion: None,
