@@ -29,6 +29,9 @@ sens() {
     sens "urban, 5 % of IMU frames lost" urban sensors.imu_drop_prob=0.05
     sens "urban, soft suspension" urban "realistic.pitch_freq_hz=[1.0, 1.1]" \
         "realistic.pitch_damping=[0.15, 0.25]" "realistic.pitch_per_accel_deg=[0.3, 0.45]"
+    sens "urban, gyro 0.03 deg/s/rtHz" urban sensors.gyro_noise_dps_rthz=0.03
+    sens "stop-and-go, gyro 0.03 deg/s/rtHz" stop-and-go sensors.gyro_noise_dps_rthz=0.03
+    sens "urban, gyro 0.05 deg/s/rtHz" urban sensors.gyro_noise_dps_rthz=0.05
     sens "urban, IMU 1.5 m ahead, left, high" urban "realistic.lever_arm_m=[1.5, -0.6, 0.7]"
     sens "urban, gentle braking (0.4-0.8 m/s^2)" urban "brake_mps2=[0.4, 0.8]"
     sens "stop-and-go, gentle braking (0.4-0.8 m/s^2)" stop-and-go "brake_mps2=[0.4, 0.8]"
