@@ -467,6 +467,32 @@ fn realistic_urban_drives_end_inside_the_budget_and_beat_the_baseline() {
     );
 }
 
+/// Replay a drive through the default estimator: its road-to-body estimate as it was
+/// at each of `times` (the last one at or before it), deg.
+fn estimates_at<const N: usize>(drive: &leveld::sim::Drive, times: [f64; N]) -> [Option<f64>; N] {
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    let mut out = [None; N];
+    for input in drive.merged() {
+        let t = match input {
+            Input::Imu(x) => {
+                est.push_imu(x, &mut |_| {});
+                x.t_s
+            }
+            Input::Wheels(w) => {
+                est.push_wheels(w, &mut |_| {});
+                w.t_s
+            }
+        };
+        let e = est.estimate().map(|e| e.road_to_body_deg);
+        for (o, &at) in out.iter_mut().zip(&times) {
+            if t <= at {
+                *o = e;
+            }
+        }
+    }
+    out
+}
+
 /// Mean |estimate - truth| over the second half of a drive (every method has an
 /// estimate by then), deg.
 fn track_abs_err(track: &[(f64, f64, f64)]) -> f64 {
@@ -505,28 +531,8 @@ fn a_load_still_ramping_in_at_drive_off_is_applied_as_the_car_moves() {
         let plan = case.plan.as_ref().unwrap();
         let (t_stop, t_go) = (plan.stops[3].0, plan.stops[3].1);
         let drive = simulate(&case.scenario);
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-        let (mut at_stop, mut moving) = (None, None);
-        for input in drive.merged() {
-            let t = match input {
-                Input::Imu(x) => {
-                    est.push_imu(x, &mut |_| {});
-                    x.t_s
-                }
-                Input::Wheels(w) => {
-                    est.push_wheels(w, &mut |_| {});
-                    w.t_s
-                }
-            };
-            let e = est.estimate().map(|e| e.road_to_body_deg);
-            if t <= t_stop {
-                at_stop = e;
-            }
-            // The window after the stop ends 2 m on: the car has just begun to move.
-            if t <= t_go + 1.0 {
-                moving = e;
-            }
-        }
+        // The window after the stop ends 2 m on: the car has just begun to move.
+        let [at_stop, moving] = estimates_at(&drive, [t_stop, t_go + 1.0]);
         let truth = |t: f64| drive.truth_at(t).load_pitch_deg;
         // A ramp that outlasts the stop goes on unseen while the car drives.
         let step = truth(t_go) - truth(t_stop);
@@ -912,27 +918,7 @@ fn a_load_change_on_a_soft_suspension_is_measured_from_force_and_gyro() {
         let (stop, _) = plan.load_change.unwrap();
         let (t_stop, t_go) = (plan.stops[stop].0, plan.stops[stop].1);
         let drive = simulate(&case.scenario);
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-        let (mut before, mut at_go) = (None, None);
-        for input in drive.merged() {
-            let t = match input {
-                Input::Imu(x) => {
-                    est.push_imu(x, &mut |_| {});
-                    x.t_s
-                }
-                Input::Wheels(w) => {
-                    est.push_wheels(w, &mut |_| {});
-                    w.t_s
-                }
-            };
-            let e = est.estimate().map(|e| e.road_to_body_deg);
-            if t < t_stop {
-                before = e;
-            }
-            if t < t_go {
-                at_go = e;
-            }
-        }
+        let [before, at_go] = estimates_at(&drive, [t_stop - 1e-6, t_go - 1e-6]);
         let truth = |t: f64| drive.truth_at(t).load_pitch_deg;
         let step = at_go.unwrap() - before.unwrap();
         steps.push((seed, step - (truth(t_go) - truth(t_stop))));
