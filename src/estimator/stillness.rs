@@ -35,20 +35,17 @@ impl Estimator {
         }
         let kf = k as f64;
         self.still_mean_acc = sa / kf;
-        let std_max = |s: Vector3<f64>, q: Vector3<f64>| {
+        let std_axes = |s: Vector3<f64>, q: Vector3<f64>| {
             let m = s / kf;
-            (q / kf - m.component_mul(&m))
-                .map(|v| v.max(0.0).sqrt())
-                .max()
+            (q / kf - m.component_mul(&m)).map(|v| v.max(0.0).sqrt())
         };
-        let acc_ok = std_max(sa, qa) <= self.cfg.still_acc_std_mps2;
+        let acc_ok = std_axes(sa, qa).max() <= self.cfg.still_acc_std_mps2;
+        let gyro_sd = std_axes(sg, qg);
         if acc_ok && self.wheels_zero_since.is_some() {
-            let m = sg / kf;
-            let sd = (qg / kf - m.component_mul(&m)).map(|v| v.max(0.0).sqrt());
-            self.gyro_noise.learn(median3(sd), k);
+            self.gyro_noise.learn(median3(gyro_sd), k);
         }
         let scale = self.gyro_gate_scale();
-        let gyro_ok = std_max(sg, qg).to_degrees() <= self.cfg.still_gyro_std_dps * scale;
+        let gyro_ok = gyro_sd.max().to_degrees() <= self.cfg.still_gyro_std_dps * scale;
         let offset_dps = self.bias_rps.map(|b| (sg / kf - b).norm().to_degrees());
         let mean_ok = offset_dps.is_none_or(|o| o <= self.cfg.still_gyro_dps * scale);
 
