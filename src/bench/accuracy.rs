@@ -107,6 +107,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         drive_off_speed_mps: 1e3,
         ..d()
     };
+    let endpoint_slope = EstimatorConfig {
+        velocity_free_slope: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         shift_windows: 0,
         averaging: Averaging::Mean,
@@ -125,6 +129,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         derotated_motion_anchor: false,
         rest_swing_gate_mps2: 1e3,
         scale_gyro_gates: false,
+        velocity_free_slope: false,
         ..d()
     };
     vec![
@@ -153,6 +158,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_swing_gate, "no-rest-swing-gate")),
         Box::new(Leveld::new(every_block_bias, "every-block-teaches-bias")),
         Box::new(Leveld::new(fixed_gyro_gates, "fixed-gyro-gates")),
+        Box::new(Leveld::new(endpoint_slope, "endpoint-slope")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

@@ -39,6 +39,8 @@ pub struct WindowReport {
     pub road_to_body_deg: f64,
     pub distance_m: f64,
     pub duration_s: f64,
+    /// Time of the walk's first sample, s (the latest one for a deceleration window).
+    pub start_s: f64,
     pub chord_deviation_m: f64,
 }
 

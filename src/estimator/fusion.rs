@@ -94,6 +94,8 @@ impl Estimator {
             max_yaw_rate_rps: c.max_yaw_rate_dps.to_radians(),
             max_lateral_acc_mps2: c.max_lateral_acc_mps2,
             max_chord_deviation_m: c.max_chord_deviation_m,
+            velocity_free: c.velocity_free_slope,
+            velocity_free_max_chord_m: c.velocity_free_max_chord_m,
         }
     }
 
@@ -173,6 +175,7 @@ impl Estimator {
                     road_to_body_deg: r2b.to_degrees(),
                     distance_m: g.distance_m,
                     duration_s: g.duration_s,
+                    start_s: g.start_s,
                     chord_deviation_m: g.chord_deviation_m,
                 };
                 if let Some(estimate) = self.estimate {

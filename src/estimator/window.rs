@@ -58,6 +58,10 @@ pub struct WindowSetup {
     pub max_yaw_rate_rps: f64,
     pub max_lateral_acc_mps2: f64,
     pub max_chord_deviation_m: f64,
+    /// Slope from the velocity-free fit instead of the end point, on a path that
+    /// leaves its chord by at most `velocity_free_max_chord_m`.
+    pub velocity_free: bool,
+    pub velocity_free_max_chord_m: f64,
 }
 
 /// Geometry of a completed window.
@@ -68,6 +72,8 @@ pub struct WindowGeometry {
     /// Horizontal path length (eq. 15), m.
     pub distance_m: f64,
     pub duration_s: f64,
+    /// Time of the walk's first sample, s.
+    pub start_s: f64,
     pub chord_deviation_m: f64,
     pub max_yaw_rate_rps: f64,
     pub max_lateral_acc_mps2: f64,
@@ -98,6 +104,13 @@ pub struct WindowIntegrator {
     at_distance: Option<(Vector3<f64>, f64, f64)>,
     /// (horizontal path length, corrected height) per step.
     track: Vec<(f64, f64)>,
+    /// Time integrals of the corrected height and of the travel along the start
+    /// heading, m s, and the last (height, travel) they were stepped with.
+    int_z: f64,
+    int_x: f64,
+    last_zx: (f64, f64),
+    /// Slope of the velocity-free fit when `distance_m` was reached, rad.
+    fit_slope: Option<f64>,
     active: bool,
 }
 
@@ -118,6 +131,8 @@ impl WindowIntegrator {
                 max_yaw_rate_rps: 0.05,
                 max_lateral_acc_mps2: 0.5,
                 max_chord_deviation_m: 0.01,
+                velocity_free: true,
+                velocity_free_max_chord_m: 0.006,
             },
             q: UnitQuaternion::identity(),
             v: Vector3::zeros(),
@@ -131,6 +146,10 @@ impl WindowIntegrator {
             max_lat: 0.0,
             at_distance: None,
             track: Vec::with_capacity(max_points.max(2)),
+            int_z: 0.0,
+            int_x: 0.0,
+            last_zx: (0.0, 0.0),
+            fit_slope: None,
             active: false,
         }
     }
@@ -152,6 +171,10 @@ impl WindowIntegrator {
         self.at_distance = None;
         self.track.clear();
         self.track.push((0.0, 0.0));
+        self.int_z = 0.0;
+        self.int_x = 0.0;
+        self.last_zx = (0.0, 0.0);
+        self.fit_slope = None;
         self.active = true;
     }
 
@@ -208,8 +231,22 @@ impl WindowIntegrator {
         self.track.push((self.horizontal_m, corrected.z));
 
         let duration_s = (s.t_s - self.t_start_s).abs();
+        let heading = self.setup.q0 * Vector3::x();
+        let hn = heading.x.hypot(heading.y).max(1e-9);
+        let zx = (
+            corrected.z,
+            (corrected.x * heading.x + corrected.y * heading.y) / hn,
+        );
+        self.int_z += 0.5 * (zx.0 + self.last_zx.0) * dt.abs();
+        self.int_x += 0.5 * (zx.1 + self.last_zx.1) * dt.abs();
+        self.last_zx = zx;
         if self.at_distance.is_none() && self.horizontal_m >= self.setup.distance_m {
             self.at_distance = Some((corrected, self.horizontal_m, duration_s));
+            // Weights t (T - t) on the acceleration, moved onto the positions: the
+            // velocity the walk started with drops out.
+            let sz = duration_s * zx.0 - 2.0 * self.int_z;
+            let sx = duration_s * zx.1 - 2.0 * self.int_x;
+            self.fit_slope = Some((sz * sx.signum()).atan2(sx.abs()));
         }
         if self.at_distance.is_some()
             && self.horizontal_m >= self.setup.distance_m + self.setup.check_extra_m
@@ -280,10 +317,17 @@ impl WindowIntegrator {
                 chord_deviation_m: dev,
             });
         }
+        // A path bent by more than `velocity_free_max_chord_m` may hold a grade change,
+        // which the velocity-free fit would partly read as a start velocity.
+        let slope_rad = match self.fit_slope {
+            Some(f) if s.velocity_free && dev <= s.velocity_free_max_chord_m => f,
+            _ => slope_rad,
+        };
         Ok(WindowGeometry {
             slope_rad,
             distance_m: len,
             duration_s,
+            start_s: self.t_start_s,
             chord_deviation_m: dev,
             max_yaw_rate_rps: self.max_yaw,
             max_lateral_acc_mps2: self.max_lat,
@@ -311,6 +355,8 @@ mod tests {
             max_yaw_rate_rps: 0.05,
             max_lateral_acc_mps2: 0.5,
             max_chord_deviation_m: 0.01,
+            velocity_free: true,
+            velocity_free_max_chord_m: 0.006,
         }
     }
 
@@ -362,6 +408,40 @@ mod tests {
                 t_expect
             );
         }
+    }
+
+    #[test]
+    fn a_start_velocity_the_walk_does_not_know_leaves_the_velocity_free_slope_exact() {
+        // A gentle drive-off (0.4 m/s^2) up a 3 % road, walked from a start velocity of
+        // 5 mm/s up that the IMU did not have (a rocking tail mistaken at the start).
+        let (slope, a) = (0.03f64.atan(), 0.4);
+        let q0 = attitude_from_gravity(&specific_force(slope, 0.0, 0.0)).unwrap();
+        let walk = |velocity_free: bool| {
+            let mut w = WindowIntegrator::with_capacity(2000);
+            w.start(
+                WindowSetup {
+                    velocity_free,
+                    ..setup(q0)
+                },
+                Vector3::new(0.0, 0.0, 0.005),
+            );
+            for k in 0..1000 {
+                let s = ImuSample::new(
+                    k as f64 * 0.01,
+                    specific_force(slope, 0.0, a).into(),
+                    [0.0; 3],
+                );
+                if let Step::Done(r) = w.push(&s) {
+                    return r.expect("window must be accepted").slope_rad;
+                }
+            }
+            panic!("window must complete");
+        };
+        let fitted = walk(true);
+        assert!((fitted - slope).abs() < 1e-9, "{}", fitted.to_degrees());
+        // The chord to the end point carries 5 mm/s over about 3.2 s across 2 m.
+        let chord_err = (walk(false) - slope).to_degrees();
+        assert!((chord_err - 0.45).abs() < 0.05, "{chord_err}");
     }
 
     #[test]
