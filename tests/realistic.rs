@@ -936,3 +936,46 @@ fn a_load_change_on_a_soft_suspension_is_measured_from_force_and_gyro() {
     eprintln!("step minus truth before drive-off: {steps:+.3?}");
     assert!(ok >= 3, "{ok} of 4 within 0.1 deg: {steps:+.3?}");
 }
+
+/// Median absolute window error of the shipped urban and stop-and-go drives (1P, two
+/// seeds each: gentle drive-offs, short stops, doors shut at rest), and the count.
+fn shipped_window_median(velocity_free: bool) -> (f64, usize) {
+    let mut errs = Vec::new();
+    for (file, seeds) in [("urban", [101, 102]), ("stop-and-go", [301, 302])] {
+        let text = std::fs::read_to_string(format!(
+            "{}/scenarios/realistic/{file}.toml",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap();
+        let mut s = DriveSpec::parse(&text).unwrap();
+        for seed in seeds {
+            s.seed = seed;
+            let case: Case = s.cases().remove(0);
+            let cfg = EstimatorConfig {
+                velocity_free_slope: velocity_free,
+                ..EstimatorConfig::default()
+            };
+            errs.extend(window_errors(&case, cfg, None).iter().map(|e| e.abs()));
+        }
+    }
+    errs.sort_by(f64::total_cmp);
+    (
+        errs.get(errs.len() / 2).copied().unwrap_or(f64::NAN),
+        errs.len(),
+    )
+}
+
+/// The same windows, walked from the same starts: the chord to the window's end
+/// carries the start velocity (a body still swinging, a drive-off found late, the
+/// noise integrated at rest), the velocity-free slope does not. Measured: median 0.134
+/// deg against 0.184.
+#[test]
+fn windows_are_measured_without_the_velocity_the_walk_starts_with() {
+    let (free, n) = shipped_window_median(true);
+    let (chord, m) = shipped_window_median(false);
+    assert!(n >= 100 && m >= 100, "{n} and {m} windows");
+    assert!(
+        free < 0.85 * chord,
+        "median velocity-free {free:.3} deg, chord {chord:.3}"
+    );
+}
