@@ -41,7 +41,7 @@ impl Estimator {
         let f = self
             .stop_bias
             .get_or_insert_with(|| GravityFilter::new(m, 1.0, [0.0; 2], STOP_BIAS_PRIOR_MPS2));
-        f.update_with(t_s, f_mean, q, r);
+        f.update_bounded(t_s, f_mean, q, r);
     }
 
     /// Attitude and gravity magnitude of a window whose reference is the raw standstill
@@ -134,10 +134,17 @@ impl GravityFilter {
         self.correct(f, y, self.r);
     }
 
-    /// Update with a measurement of known variance `r`, (m/s^2)^2.
-    fn update_with(&mut self, t_s: f64, f: &Vector3<f64>, q: f64, r: f64) {
+    /// Update with a measurement of nominal variance `r`, (m/s^2)^2, that counts as
+    /// no more than 3 standard deviations from the prediction: a stop whose few settled
+    /// samples still carried the body's motion (0.07 m/s^2 short on 7 samples) would
+    /// otherwise turn its whole miss into a horizontal bias, whose only lever is the
+    /// sine of a small pitch: 0.6 m/s^2, 3.5 deg of reference, for many stops after.
+    /// Stops that agree with each other still move the bias as fast as before.
+    fn update_bounded(&mut self, t_s: f64, f: &Vector3<f64>, q: f64, r: f64) {
         let y = self.innovation(t_s, f, q);
-        self.correct(f, y, r);
+        let h = Self::regressor(&(f / f.norm()));
+        let hph = h.dot(&(self.p * h));
+        self.correct(f, y, r.max(y * y / 9.0 - hph));
     }
 
     /// Let the state walk to `t_s`; the magnitude of `f` against the prediction.
@@ -157,5 +164,44 @@ impl GravityFilter {
         let k = ph / (h.dot(&ph) + r);
         self.x += k * y;
         self.p -= k * ph.transpose();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mean specific force of a stop with the body pitched by `pitch_deg`, gravity
+    /// `g` and accelerometer bias `b`, shortened by `miss` along itself.
+    fn stop_force(pitch_deg: f64, g: f64, b: Vector3<f64>, miss: f64) -> Vector3<f64> {
+        let p = pitch_deg.to_radians();
+        let f = Vector3::new(-g * p.sin(), 0.0, g * p.cos()) + b;
+        f * ((f.norm() - miss) / f.norm())
+    }
+
+    #[test]
+    fn one_stop_short_of_gravity_does_not_become_a_bias_that_agreeing_stops_still_teach() {
+        let (g, b) = (9.81, Vector3::new(0.03, 0.0, 0.0));
+        let r = STOP_FLOOR_MPS2 * STOP_FLOOR_MPS2;
+        let mut f = GravityFilter::new(g, 1.0, [0.0; 2], STOP_BIAS_PRIOR_MPS2);
+        for (k, pitch) in [2.3, 1.5, 1.8, 1.7, -1.4, -0.8, -0.8].iter().enumerate() {
+            f.update_bounded(k as f64 * 60.0, &stop_force(*pitch, g, b, 0.0), 0.0005, r);
+        }
+        let learnt = f.x.y;
+        assert!((learnt - b.x).abs() < 0.01, "learnt {learnt:.4}");
+        // A stop of a few settled samples of a body still swinging: 0.07 m/s^2 short.
+        let bad = stop_force(1.1, g, b, 0.07);
+        let mut plain = f;
+        let y = plain.innovation(600.0, &bad, 0.0005);
+        plain.correct(&bad, y, r);
+        f.update_bounded(600.0, &bad, 0.0005, r);
+        // Measured: the unbounded update moves the bias by 0.21 m/s^2, the bounded one
+        // by 0.033.
+        let (unbounded, bounded) = ((plain.x.y - learnt).abs(), (f.x.y - learnt).abs());
+        assert!(unbounded > 0.15, "unbounded {unbounded:.3}");
+        assert!(
+            bounded < 0.05 && bounded < unbounded / 4.0,
+            "bounded {bounded:.4}"
+        );
     }
 }
