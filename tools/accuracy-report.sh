@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate docs/accuracy.md from docs/accuracy.tmpl.md with the figures of the code
-# in this tree (about 10 minutes on 2 idle cores).
+# in this tree (about 15 minutes on 2 idle cores).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release -q
