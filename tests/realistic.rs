@@ -8,12 +8,17 @@ use leveld::bench::suite::{Case, DriveSpec};
 use leveld::estimator::{Condition, Estimate, Estimator, EstimatorConfig, Event};
 use leveld::sim::{Input, simulate};
 
-fn spec(seed: u64, stops: usize, r: RealisticSpec) -> DriveSpec {
-    let text = std::fs::read_to_string(format!(
-        "{}/scenarios/realistic/urban.toml",
+/// Text of a shipped realistic scenario file.
+fn shipped(name: &str) -> String {
+    std::fs::read_to_string(format!(
+        "{}/scenarios/realistic/{name}.toml",
         env!("CARGO_MANIFEST_DIR")
     ))
-    .unwrap();
+    .unwrap()
+}
+
+fn spec(seed: u64, stops: usize, r: RealisticSpec) -> DriveSpec {
+    let text = shipped("urban");
     let mut s = DriveSpec::parse(&text).unwrap();
     s.seed = seed;
     s.stops = stops;
@@ -164,11 +169,7 @@ fn gentle_drive_offs_from_stops_too_short_to_settle_give_windows() {
 /// while the car stood still; the load change was never measured at its stop.
 #[test]
 fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
-    let text = std::fs::read_to_string(format!(
-        "{}/scenarios/realistic/urban.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .unwrap();
+    let text = shipped("urban");
     let mut s = DriveSpec::parse(&text).unwrap();
     s.seed = 104;
     let case = &s.cases()[1];
@@ -422,11 +423,7 @@ fn an_accelerometer_bias_on_a_diving_body_does_not_bias_the_windows() {
 #[test]
 fn realistic_urban_drives_end_inside_the_budget_and_beat_the_baseline() {
     // The full family runs in `leveld bench accuracy --scenarios scenarios/realistic/*.toml`.
-    let text = std::fs::read_to_string(format!(
-        "{}/scenarios/realistic/urban.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .unwrap();
+    let text = shipped("urban");
     let mut s = DriveSpec::parse(&text).unwrap();
     let cases: Vec<_> = [101, 102]
         .into_iter()
@@ -622,11 +619,7 @@ fn stop_and_go_drives_all_reach_valid() {
     // in opposite directions (they share its reference). Counted as independent, that
     // spread kept the standard error above the VALID bound for a whole drive on some of
     // these (2 of 8 with `pair_stop_windows` off).
-    let text = std::fs::read_to_string(format!(
-        "{}/scenarios/realistic/stop-and-go.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .unwrap();
+    let text = shipped("stop-and-go");
     let mut never = Vec::new();
     for seed in 311..315 {
         let mut s = DriveSpec::parse(&text).unwrap();
@@ -800,11 +793,7 @@ fn the_gyro_bias_does_not_learn_the_bodys_swing_after_a_stop() {
     // from 1 s after the stop, within the gate: 0.915-1.00 (0.037, worst 0.085).
     let mut off = Vec::new();
     for name in ["hilly", "bumpy"] {
-        let text = std::fs::read_to_string(format!(
-            "{}/scenarios/realistic/{name}.toml",
-            env!("CARGO_MANIFEST_DIR")
-        ))
-        .unwrap();
+        let text = shipped(name);
         let quiet = [
             "sensors.acc_noise_ug_rthz=0.0",
             "sensors.gyro_noise_dps_rthz=0.0",
@@ -861,11 +850,7 @@ fn a_gyro_three_times_noisier_than_the_gates_are_sized_for_still_reaches_valid()
     // 0.2 deg error budget while VALID (measured: worst 0.16).
     use leveld::bench::accuracy::run_case;
     use leveld::bench::baselines::{Leveld, PitchMethod};
-    let text = std::fs::read_to_string(format!(
-        "{}/scenarios/realistic/stop-and-go.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .unwrap();
+    let text = shipped("stop-and-go");
     let noisy = ["sensors.gyro_noise_dps_rthz=0.03".to_string()];
     let mut s = DriveSpec::parse_with(&text, &noisy).unwrap();
     let base = s.seed;
@@ -907,11 +892,7 @@ fn a_load_change_on_a_soft_suspension_is_measured_from_force_and_gyro() {
     // starts from wherever the swing was; the step is now the mean of the two. Urban
     // 5P, seeds 101-104: before 0 of 4 steps within 0.1 deg before drive-off (0.86,
     // 1.12, 0.86, 1.13 for 1.0); measured now 0.90, 1.07, 0.97, 1.11.
-    let text = std::fs::read_to_string(format!(
-        "{}/scenarios/realistic/urban.toml",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .unwrap();
+    let text = shipped("urban");
     let soft = [
         "realistic.pitch_freq_hz=[1.0, 1.1]",
         "realistic.pitch_damping=[0.15, 0.25]",
@@ -942,11 +923,7 @@ fn a_load_change_on_a_soft_suspension_is_measured_from_force_and_gyro() {
 fn shipped_window_median(velocity_free: bool) -> (f64, usize) {
     let mut errs = Vec::new();
     for (file, seeds) in [("urban", [101, 102]), ("stop-and-go", [301, 302])] {
-        let text = std::fs::read_to_string(format!(
-            "{}/scenarios/realistic/{file}.toml",
-            env!("CARGO_MANIFEST_DIR")
-        ))
-        .unwrap();
+        let text = shipped(file);
         let mut s = DriveSpec::parse(&text).unwrap();
         for seed in seeds {
             s.seed = seed;

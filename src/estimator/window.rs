@@ -104,8 +104,10 @@ pub struct WindowIntegrator {
     at_distance: Option<(Vector3<f64>, f64, f64)>,
     /// (horizontal path length, corrected height) per step.
     track: Vec<(f64, f64)>,
-    /// Time integrals of the corrected height and of the travel along the start
-    /// heading, m s, and the last (height, travel) they were stepped with.
+    /// Unit horizontal heading of the body at the start of the walk, (x, y).
+    heading: (f64, f64),
+    /// Time integrals of the corrected height and of the travel along `heading`, m s,
+    /// and the last (height, travel) they were stepped with.
     int_z: f64,
     int_x: f64,
     last_zx: (f64, f64),
@@ -146,6 +148,7 @@ impl WindowIntegrator {
             max_lat: 0.0,
             at_distance: None,
             track: Vec::with_capacity(max_points.max(2)),
+            heading: (1.0, 0.0),
             int_z: 0.0,
             int_x: 0.0,
             last_zx: (0.0, 0.0),
@@ -171,6 +174,9 @@ impl WindowIntegrator {
         self.at_distance = None;
         self.track.clear();
         self.track.push((0.0, 0.0));
+        let h = setup.q0 * Vector3::x();
+        let hn = h.x.hypot(h.y).max(1e-9);
+        self.heading = (h.x / hn, h.y / hn);
         self.int_z = 0.0;
         self.int_x = 0.0;
         self.last_zx = (0.0, 0.0);
@@ -231,12 +237,8 @@ impl WindowIntegrator {
         self.track.push((self.horizontal_m, corrected.z));
 
         let duration_s = (s.t_s - self.t_start_s).abs();
-        let heading = self.setup.q0 * Vector3::x();
-        let hn = heading.x.hypot(heading.y).max(1e-9);
-        let zx = (
-            corrected.z,
-            (corrected.x * heading.x + corrected.y * heading.y) / hn,
-        );
+        let (hx, hy) = self.heading;
+        let zx = (corrected.z, corrected.x * hx + corrected.y * hy);
         self.int_z += 0.5 * (zx.0 + self.last_zx.0) * dt.abs();
         self.int_x += 0.5 * (zx.1 + self.last_zx.1) * dt.abs();
         self.last_zx = zx;
@@ -298,8 +300,7 @@ impl WindowIntegrator {
         }
         // Travel direction against the body heading at the start: +1 when the walk
         // goes nose-first (forward drive, forward in time), -1 otherwise.
-        let heading = s.q0 * Vector3::x();
-        let along = end.x * heading.x + end.y * heading.y;
+        let along = end.x * self.heading.0 + end.y * self.heading.1;
         let sign = if along >= 0.0 { 1.0 } else { -1.0 };
         let height = end.z;
         let slope_rad = (sign * height).atan2(len);
