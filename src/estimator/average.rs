@@ -13,6 +13,13 @@ pub struct Averager {
     entries: Vec<(f64, f64)>,
     /// Windows accepted since the last load change (or reset).
     accepted: u64,
+    /// Spread of single windows measured before the last load changes: sum of squares
+    /// (deg^2) and degrees of freedom. The windows are gone, but what they showed of the
+    /// window noise still holds.
+    #[serde(default)]
+    carried_ss: f64,
+    #[serde(default)]
+    carried_dof: f64,
     #[serde(skip)]
     scratch: Vec<f64>,
     /// Counts every change of `entries`: a [`PairHandle`] stays good while it holds.
@@ -26,6 +33,14 @@ pub struct Averager {
 /// The newest entry as it was when a window was pushed; see [`Averager::merge_newest`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PairHandle(u64);
+
+/// See [`Averager::fit`].
+struct Fit {
+    value_deg: f64,
+    weight: f64,
+    ss: f64,
+    dof: f64,
+}
 
 /// Combined estimate with its uncertainty.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -45,6 +60,8 @@ impl Averager {
             sigma_prior_deg,
             entries: Vec::with_capacity(capacity),
             accepted: 0,
+            carried_ss: 0.0,
+            carried_dof: 0.0,
             scratch: Vec::with_capacity(capacity),
             changes: 0,
             pair_bits: 0,
@@ -103,6 +120,16 @@ impl Averager {
     /// spread of a typical window. Older windows are dropped.
     pub fn restart_shifted(&mut self, delta_deg: f64, delta_sd_deg: f64, prior_weight: f64) {
         let prior = self.combined();
+        if let Some(f) = self.fit() {
+            self.carried_ss += f.ss;
+            self.carried_dof += f.dof;
+            // The carried spread counts as at most one full average of windows.
+            let cap = self.capacity as f64;
+            if self.carried_dof > cap {
+                self.carried_ss *= cap / self.carried_dof;
+                self.carried_dof = cap;
+            }
+        }
         self.entries.clear();
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits = 0;
@@ -145,41 +172,68 @@ impl Averager {
 
     /// Current combined value; `None` before any window.
     pub fn combined(&mut self) -> Option<Combined> {
+        let f = self.fit()?;
+        // Spread of a window of weight 1, pooled with a prior worth two windows so that
+        // a handful of agreeing windows does not claim an implausibly small error.
+        let k0 = 2.0;
+        let num = k0 * self.sigma_prior_deg.powi(2) + self.carried_ss + f.ss;
+        let sigma = (num / (k0 + self.carried_dof + f.dof)).sqrt();
+        Some(Combined {
+            value_deg: f.value_deg,
+            std_err_deg: sigma / f.weight.sqrt(),
+            weight: f.weight,
+        })
+    }
+
+    /// Value of the current entries and what their residuals show of the spread of a
+    /// window of weight 1. Each residual is clipped where the Huber estimate stops
+    /// following it (a window it discounts moves the value, and so its error, no
+    /// further); dividing by the square of the share of weight it follows turns that
+    /// clipped sum into the M-estimate's variance (1.03 of a Gaussian's spread at 1.5
+    /// sigma). Both change smoothly as a window crosses the clip. One degree of freedom
+    /// per entry: a pair of windows or a load-change prior is one residual.
+    fn fit(&mut self) -> Option<Fit> {
         if self.entries.is_empty() {
             return None;
         }
         let wsum: f64 = self.entries.iter().map(|e| e.1).sum();
-        let mean = self.entries.iter().map(|e| e.0 * e.1).sum::<f64>() / wsum;
-        let value = match self.mode {
-            Averaging::Mean => mean,
+        let (value, clip) = match self.mode {
+            // One entry (a restored or restarted estimate) is its own value, exactly.
+            _ if self.entries.len() == 1 => (self.entries[0].0, f64::INFINITY),
+            Averaging::Mean => {
+                let mean = self.entries.iter().map(|e| e.0 * e.1).sum::<f64>() / wsum;
+                (mean, f64::INFINITY)
+            }
             Averaging::Huber => self.huber(),
         };
-        // Spread of single windows: pooled with a prior worth two windows so that a
-        // handful of agreeing windows does not claim an implausibly small error.
-        let ss: f64 = self
-            .entries
-            .iter()
-            .map(|e| e.1 * (e.0 - value).powi(2))
-            .sum();
-        let k0 = 2.0;
-        let dof = (wsum - 1.0).max(0.0);
-        let sigma = ((k0 * self.sigma_prior_deg.powi(2) + ss) / (k0 + dof)).sqrt();
-        Some(Combined {
+        let (mut ss, mut followed_w) = (0.0, 0.0);
+        for &(x, w) in &self.entries {
+            let r = (x - value).abs();
+            ss += w * r.min(clip).powi(2);
+            // The Huber weight: 1 inside the clip, clip / residual beyond, so that the
+            // share moves smoothly as a window crosses the clip.
+            followed_w += w * if r > clip { clip / r } else { 1.0 };
+        }
+        let share = (followed_w / wsum).max(0.5);
+        Some(Fit {
             value_deg: value,
-            std_err_deg: sigma / wsum.sqrt(),
             weight: wsum,
+            ss: ss / (share * share),
+            dof: (self.entries.len() as f64 - 1.0).max(0.0),
         })
     }
 
-    /// Weighted Huber M-estimate of location with a MAD scale.
-    fn huber(&mut self) -> f64 {
+    /// Weighted Huber M-estimate of location with a MAD scale, and the residual beyond
+    /// which it discounts a window (infinite below three entries).
+    fn huber(&mut self) -> (f64, f64) {
         let n = self.entries.len();
         self.scratch.clear();
         self.scratch.extend(self.entries.iter().map(|e| e.0));
         let med = median(&mut self.scratch);
         if n < 3 {
             let wsum: f64 = self.entries.iter().map(|e| e.1).sum();
-            return self.entries.iter().map(|e| e.0 * e.1).sum::<f64>() / wsum;
+            let mean = self.entries.iter().map(|e| e.0 * e.1).sum::<f64>() / wsum;
+            return (mean, f64::INFINITY);
         }
         self.scratch.clear();
         self.scratch
@@ -199,11 +253,11 @@ impl Averager {
             }
             let next = num / den;
             if (next - mu).abs() < 1e-9 {
-                return next;
+                return (next, c);
             }
             mu = next;
         }
-        mu
+        (mu, c)
     }
 }
 
@@ -221,6 +275,8 @@ impl Averager {
     /// Seed with a restored value worth `weight` windows (`accepted` of them under this load).
     pub fn restore_prior(&mut self, value_deg: f64, weight: f64, accepted: u64) {
         self.entries.clear();
+        self.carried_ss = 0.0;
+        self.carried_dof = 0.0;
         self.push_weighted(value_deg, weight);
         self.pair_bits = 0;
         self.accepted = accepted;
@@ -299,6 +355,42 @@ mod tests {
         assert!((after.value_deg - before.value_deg - 1.0).abs() < 1e-12);
         assert!(after.weight < 1.0, "{after:?}");
         assert!(after.std_err_deg > 0.15, "{after:?}");
+    }
+
+    #[test]
+    fn a_load_change_keeps_what_the_windows_showed_of_their_spread() {
+        // 20 windows 0.1 deg apart: the spread of a window is known far better than
+        // the prior of 0.2 deg says.
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        for k in 0..20 {
+            a.push(if k % 2 == 0 { 0.4 } else { 0.6 });
+        }
+        a.restart_shifted(1.0, 0.0, 4.0);
+        let c = a.combined().unwrap();
+        assert_eq!(c.weight, 4.0);
+        // The prior's spread alone would give 0.2 / sqrt(4) = 0.1.
+        let sigma = ((2.0f64 * 0.04 + 20.0 * 0.01) / (2.0 + 19.0)).sqrt();
+        assert!((c.std_err_deg - sigma / 2.0).abs() < 1e-9, "{c:?}");
+        // A restored state knows nothing of the spread.
+        a.restore_prior(1.5, 4.0, 0);
+        assert!((a.combined().unwrap().std_err_deg - 0.1).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_window_the_huber_estimate_discounts_widens_the_error_only_so_far() {
+        let mut a = Averager::new(Averaging::Huber, 64, 0.2);
+        for k in 0..10 {
+            a.push(if k % 2 == 0 { 0.45 } else { 0.55 });
+        }
+        let before = a.combined().unwrap();
+        a.push(3.0);
+        let after = a.combined().unwrap();
+        // Unclipped, its square alone would put the error at about 0.22 deg.
+        assert!(after.std_err_deg < 0.05, "{before:?} {after:?}");
+        assert!(
+            after.std_err_deg > before.std_err_deg,
+            "{before:?} {after:?}"
+        );
     }
 
     #[test]
