@@ -5,7 +5,7 @@ use leveld::estimator::{Condition, EstimatorConfig};
 use leveld::sim::paper::{self, Row, Setting, Sweep, WindowError};
 
 fn cfg() -> EstimatorConfig {
-    EstimatorConfig::default()
+    paper::paper_config()
 }
 
 fn setting(

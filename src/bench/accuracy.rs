@@ -111,7 +111,12 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         velocity_free_slope: false,
         ..d()
     };
+    let short_windows = EstimatorConfig {
+        window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
+        ..d()
+    };
     let paper = EstimatorConfig {
+        window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
         averaging: Averaging::Mean,
         lever_arm_m: [0.0; 3],
@@ -159,6 +164,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(every_block_bias, "every-block-teaches-bias")),
         Box::new(Leveld::new(fixed_gyro_gates, "fixed-gyro-gates")),
         Box::new(Leveld::new(endpoint_slope, "endpoint-slope")),
+        Box::new(Leveld::new(short_windows, "2-m-windows")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

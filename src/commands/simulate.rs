@@ -1,6 +1,5 @@
 //! `leveld simulate`: drives written as candump logs, and the paper's simulation grid.
 
-use crate::estimator::EstimatorConfig;
 use crate::sim::paper::{self, Row, Sweep};
 use anyhow::Result;
 use std::io::Write;
@@ -26,13 +25,7 @@ pub fn paper_grid(
             .map(|n| n.get())
             .unwrap_or(1)
     });
-    let rows = paper::run_grid(
-        &paper::grid(),
-        runs,
-        seed,
-        &EstimatorConfig::default(),
-        threads,
-    );
+    let rows = paper::run_grid(&paper::grid(), runs, seed, &paper::paper_config(), threads);
     let mut out = std::io::stdout().lock();
     match format {
         GridFormat::Json => {

@@ -82,6 +82,18 @@ pub fn combos() -> Vec<(f64, f64, f64)> {
     v
 }
 
+/// The paper's window distance T_d (eq. 15), m.
+pub const PAPER_WINDOW_M: f64 = 2.0;
+
+/// leveld's estimator as the grid runs it: its defaults with the paper's window
+/// distance, so that the grid's figures compare with the paper's.
+pub fn paper_config() -> EstimatorConfig {
+    EstimatorConfig {
+        window_distance_m: PAPER_WINDOW_M,
+        ..EstimatorConfig::default()
+    }
+}
+
 /// Every setting of both sweeps.
 pub fn grid() -> Vec<Setting> {
     let mut out = Vec::new();
