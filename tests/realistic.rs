@@ -891,7 +891,11 @@ fn a_load_change_on_a_soft_suspension_is_measured_from_force_and_gyro() {
     // of the swing. Its force carries the lever arm's acceleration and the gyro's turn
     // starts from wherever the swing was; the step is now the mean of the two. Urban
     // 5P, seeds 101-104: before 0 of 4 steps within 0.1 deg before drive-off (0.86,
-    // 1.12, 0.86, 1.13 for 1.0); measured now 0.90, 1.07, 0.97, 1.11.
+    // 1.12, 0.86, 1.13 for 1.0); measured now 0.93, 1.04, 0.95, 1.11.
+    //
+    // The step is the estimate at drive-off against the estimate once the stop's own
+    // deceleration window is in, not before the stop: that window measures the old
+    // load and moves the estimate as any window does (-0.03 deg on seed 101).
     let text = shipped("urban");
     let soft = [
         "realistic.pitch_freq_hz=[1.0, 1.1]",
@@ -908,10 +912,43 @@ fn a_load_change_on_a_soft_suspension_is_measured_from_force_and_gyro() {
         let (stop, _) = plan.load_change.unwrap();
         let (t_stop, t_go) = (plan.stops[stop].0, plan.stops[stop].1);
         let drive = simulate(&case.scenario);
-        let [before, at_go] = estimates_at(&drive, [t_stop - 1e-6, t_go - 1e-6]);
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        let (mut before, mut at_go) = (None, None);
+        for input in drive.merged() {
+            let t = match input {
+                Input::Imu(x) => x.t_s,
+                Input::Wheels(w) => w.t_s,
+            };
+            if t >= t_go {
+                at_go = est.estimate().map(|e| e.road_to_body_deg);
+                break;
+            }
+            if t >= t_stop && before.is_none() {
+                before = est.estimate().map(|e| e.road_to_body_deg);
+            }
+            // The estimate as the window left it (a load change may follow in the
+            // same step).
+            let mut after_window = None;
+            let mut see = |e: Event| {
+                if let Event::WindowAccepted { window, estimate } = e
+                    && window.condition == Condition::DecelBeforeStop
+                {
+                    after_window = Some(estimate.road_to_body_deg);
+                }
+            };
+            match input {
+                Input::Imu(x) => est.push_imu(x, &mut see),
+                Input::Wheels(w) => est.push_wheels(w, &mut see),
+            }
+            if t >= t_stop && after_window.is_some() {
+                before = after_window;
+            }
+        }
         let truth = |t: f64| drive.truth_at(t).load_pitch_deg;
-        let step = at_go.unwrap() - before.unwrap();
-        steps.push((seed, step - (truth(t_go) - truth(t_stop))));
+        let (Some(before), Some(at_go)) = (before, at_go) else {
+            panic!("seed {seed}: no estimate at the stop");
+        };
+        steps.push((seed, at_go - before - (truth(t_go) - truth(t_stop))));
     }
     let ok = steps.iter().filter(|(_, e)| e.abs() <= 0.1).count();
     eprintln!("step minus truth before drive-off: {steps:+.3?}");
