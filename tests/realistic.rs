@@ -993,3 +993,71 @@ fn windows_are_measured_without_the_velocity_the_walk_starts_with() {
         "median velocity-free {free:.3} deg, chord {chord:.3}"
     );
 }
+
+#[test]
+fn the_standard_error_behind_valid_is_not_overconfident() {
+    // At the start of stops 2-8 of realistic drives, the estimate's error against the
+    // standard error it reports, where that standard error is within the VALID bound.
+    // On the benchmark's 64 drives (8 seeds of every scenario and load) the rms of
+    // error / standard error is 1.03 there; on pairs of seeds, 0.85-1.28. Before the
+    // average counted residuals up to its Huber clip it was 0.67 (cautious), and a
+    // standard error that claims half the true error would give 2. These are seeds
+    // the benchmark does not run (the 9th and 10th of each scenario): measured 0.90
+    // over 28 stops.
+    let cases: Vec<Case> = ["urban", "hilly", "stop-and-go", "bumpy"]
+        .iter()
+        .flat_map(|name| {
+            let mut s = DriveSpec::parse(&shipped(name)).unwrap();
+            let base = s.seed;
+            (8..10).flat_map(move |k| {
+                s.seed = base + k;
+                s.cases()
+            })
+        })
+        .collect();
+    let ratios: Vec<f64> = std::thread::scope(|sc| {
+        let hs: Vec<_> = cases
+            .chunks(cases.len().div_ceil(2))
+            .map(|chunk| {
+                sc.spawn(move || {
+                    let mut out = Vec::new();
+                    for case in chunk {
+                        let plan = case.plan.as_ref().unwrap();
+                        let drive = simulate(&case.scenario);
+                        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+                        let mut next = 2;
+                        for input in drive.merged() {
+                            let t = match input {
+                                Input::Imu(x) => x.t_s,
+                                Input::Wheels(w) => w.t_s,
+                            };
+                            while next <= 8 && next < plan.stops.len() && t >= plan.stops[next].0 {
+                                if let Some(e) = est.estimate()
+                                    && e.std_err_deg <= 0.06
+                                {
+                                    let err = e.road_to_body_deg - drive.truth_at(t).load_pitch_deg;
+                                    out.push(err / e.std_err_deg);
+                                }
+                                next += 1;
+                            }
+                            match input {
+                                Input::Imu(x) => est.push_imu(x, &mut |_| {}),
+                                Input::Wheels(w) => est.push_wheels(w, &mut |_| {}),
+                            }
+                        }
+                    }
+                    out
+                })
+            })
+            .collect();
+        hs.into_iter().flat_map(|h| h.join().unwrap()).collect()
+    });
+    let n = ratios.len();
+    let rms = (ratios.iter().map(|z| z * z).sum::<f64>() / n.max(1) as f64).sqrt();
+    eprintln!("{n} stops within the VALID bound: rms of error / standard error {rms:.2}");
+    assert!(n >= 15, "too few stops within the bound to judge: {n}");
+    assert!(
+        rms <= 1.5,
+        "the standard error claims too much: rms ratio {rms:.2} over {n}"
+    );
+}
