@@ -209,10 +209,11 @@ impl Averager {
         let (mut ss, mut followed_w) = (0.0, 0.0);
         for &(x, w) in &self.entries {
             let r = (x - value).abs();
-            ss += w * r.min(clip).powi(2);
+            let c = entry_clip(clip, w);
+            ss += w * r.min(c).powi(2);
             // The Huber weight: 1 inside the clip, clip / residual beyond, so that the
             // share moves smoothly as a window crosses the clip.
-            followed_w += w * if r > clip { clip / r } else { 1.0 };
+            followed_w += w * if r > c { c / r } else { 1.0 };
         }
         let share = (followed_w / wsum).max(0.5);
         Some(Fit {
@@ -223,8 +224,12 @@ impl Averager {
         })
     }
 
-    /// Weighted Huber M-estimate of location with a MAD scale, and the residual beyond
-    /// which it discounts a window (infinite below three entries).
+    /// Weighted Huber M-estimate of location, and the residual beyond which it discounts
+    /// a window of weight 1 (infinite below three entries). Residuals are measured in
+    /// each entry's own spread: a window of weight w is expected to scatter 1/sqrt(w) as
+    /// far as one of weight 1, so its clip is that much wider, and the scale is the MAD
+    /// of the residuals so normalised. A long, noisy window is then discounted for being
+    /// far off by its own standards, not for being noisy, which its weight already says.
     fn huber(&mut self) -> (f64, f64) {
         let n = self.entries.len();
         self.scratch.clear();
@@ -237,17 +242,18 @@ impl Averager {
         }
         self.scratch.clear();
         self.scratch
-            .extend(self.entries.iter().map(|e| (e.0 - med).abs()));
+            .extend(self.entries.iter().map(|e| (e.0 - med).abs() * e.1.sqrt()));
         // 1.4826 makes the MAD a standard deviation for normal data; the floor keeps
         // identical windows from producing a zero scale.
         let scale = (1.4826 * median(&mut self.scratch)).max(0.02);
-        let c = 1.5 * scale;
+        let c = HUBER_CLIP_SIGMA * scale;
         let mut mu = med;
         for _ in 0..20 {
             let (mut num, mut den) = (0.0, 0.0);
             for &(x, w) in &self.entries {
                 let r = (x - mu).abs();
-                let hw = if r <= c { 1.0 } else { c / r };
+                let ci = entry_clip(c, w);
+                let hw = if r <= ci { 1.0 } else { ci / r };
                 num += w * hw * x;
                 den += w * hw;
             }
@@ -259,6 +265,14 @@ impl Averager {
         }
         (mu, c)
     }
+}
+
+/// Huber clip in scale units: 95 % of the mean's efficiency on Gaussian windows.
+const HUBER_CLIP_SIGMA: f64 = 1.5;
+
+/// Clip of an entry of weight `w` for the clip `c` of a window of weight 1.
+fn entry_clip(c: f64, w: f64) -> f64 {
+    c / w.max(1e-6).sqrt()
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -298,6 +312,40 @@ mod tests {
             running = ((m - 1.0) * running + x) / m; // eq. 17
             assert!((a.combined().unwrap().value_deg - running).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn a_noisy_window_is_judged_by_its_own_spread() {
+        // Five settled windows 0.05 deg apart, and a gentle drive-off worth a tenth of
+        // one: expected to scatter sqrt(10) times as far, it sits 0.3 deg off, about one
+        // of its own standard deviations. Its weight already discounts it; the Huber
+        // estimate follows it no less than the weighted mean does.
+        let mut h = Averager::new(Averaging::Huber, 64, 0.2);
+        let mut m = Averager::new(Averaging::Mean, 64, 0.2);
+        let windows = [
+            (-0.1, 1.0),
+            (-0.05, 1.0),
+            (0.0, 1.0),
+            (0.05, 1.0),
+            (0.1, 1.0),
+        ];
+        for (x, w) in windows.into_iter().chain([(0.3, 0.1)]) {
+            h.push_window(x, w);
+            m.push_window(x, w);
+        }
+        let (hv, mv) = (
+            h.combined().unwrap().value_deg,
+            m.combined().unwrap().value_deg,
+        );
+        assert!((hv - mv).abs() < 1e-9, "huber {hv}, mean {mv}");
+        // The same window at full weight is 2 of the others' spreads out, and is
+        // discounted.
+        let mut h = Averager::new(Averaging::Huber, 64, 0.2);
+        for x in [-0.1, -0.05, 0.0, 0.05, 0.1, 0.3] {
+            h.push(x);
+        }
+        let mean = 0.3 / 6.0;
+        assert!(h.combined().unwrap().value_deg < mean - 0.005);
     }
 
     #[test]

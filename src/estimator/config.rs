@@ -8,7 +8,8 @@ use serde::{Deserialize, Serialize};
 pub enum Averaging {
     /// The running mean of eq. 17 of Kim et al. (2023).
     Mean,
-    /// Huber M-estimate with a MAD scale: windows far from the bulk get less weight.
+    /// Huber M-estimate with a MAD scale: windows far from the bulk, by the spread their
+    /// own weight predicts, get less weight.
     Huber,
 }
 
