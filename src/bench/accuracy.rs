@@ -115,6 +115,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         ..d()
     };
+    let no_fallback = EstimatorConfig {
+        short_window_share: 0.0,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -135,6 +139,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         rest_swing_gate_mps2: 1e3,
         scale_gyro_gates: false,
         velocity_free_slope: false,
+        short_window_share: 0.0,
         ..d()
     };
     vec![
@@ -165,6 +170,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(fixed_gyro_gates, "fixed-gyro-gates")),
         Box::new(Leveld::new(endpoint_slope, "endpoint-slope")),
         Box::new(Leveld::new(short_windows, "2-m-windows")),
+        Box::new(Leveld::new(no_fallback, "no-half-windows")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

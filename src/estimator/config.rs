@@ -81,6 +81,13 @@ pub struct EstimatorConfig {
     /// changes, windows bent by 6-12 mm came out 0.8 deg rms with it and 0.4 with the
     /// chord, while below 6 mm it was the better of the two.
     pub velocity_free_max_chord_m: f64,
+    /// A window whose path bends (a speed bump just ahead, a grade change) or turns
+    /// beyond its first part falls back to that part: this share of
+    /// `window_distance_m`, checked over its own length against the chord limits times
+    /// the square of the share (a bend of one curvature leaves a path of half the length
+    /// a quarter as far from its chord), and weighted as the shorter window it is. 0 turns the fallback off. Creeps and rolling stops that never cover the
+    /// whole distance still give no window.
+    pub short_window_share: f64,
     /// Windows with a yaw rate above this are rejected as turning, deg/s.
     pub max_yaw_rate_dps: f64,
     /// Windows with a lateral acceleration above this are rejected as turning, m/s^2.
@@ -190,6 +197,7 @@ impl Default for EstimatorConfig {
             max_chord_deviation_m: 0.012,
             velocity_free_slope: true,
             velocity_free_max_chord_m: 0.006,
+            short_window_share: 0.5,
             max_yaw_rate_dps: 3.0,
             max_lateral_acc_mps2: 0.5,
             max_window_time_s: 15.0,
@@ -325,6 +333,13 @@ impl EstimatorConfig {
                 field: "chord_check_extra_m",
                 value: self.chord_check_extra_m,
                 hint: "choose 0..5 m",
+            });
+        }
+        if !(self.short_window_share.is_finite() && (0.0..1.0).contains(&self.short_window_share)) {
+            return Err(ConfigError {
+                field: "short_window_share",
+                value: self.short_window_share,
+                hint: "choose 0 (no fallback) up to below 1; 0.5 keeps the first half",
             });
         }
         pos("max_yaw_rate_dps", self.max_yaw_rate_dps)?;

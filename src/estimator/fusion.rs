@@ -96,6 +96,7 @@ impl Estimator {
             max_chord_deviation_m: c.max_chord_deviation_m,
             velocity_free: c.velocity_free_slope,
             velocity_free_max_chord_m: c.velocity_free_max_chord_m,
+            short_share: c.short_window_share,
         }
     }
 

@@ -62,6 +62,10 @@ pub struct WindowSetup {
     /// leaves its chord by at most `velocity_free_max_chord_m`.
     pub velocity_free: bool,
     pub velocity_free_max_chord_m: f64,
+    /// When the whole path bends or turns, the window falls back to this share of its
+    /// distance, checked over its own length against the chord limits times the square
+    /// of the share (0 turns the fallback off).
+    pub short_share: f64,
 }
 
 /// Geometry of a completed window.
@@ -113,7 +117,22 @@ pub struct WindowIntegrator {
     last_zx: (f64, f64),
     /// Slope of the velocity-free fit when `distance_m` was reached, rad.
     fit_slope: Option<f64>,
+    /// The short fallback window, taken as the walk passed its distance.
+    short: Option<ShortWindow>,
     active: bool,
+}
+
+/// What the short fallback window needs.
+#[derive(Debug, Clone, Copy)]
+struct ShortWindow {
+    end: Vector3<f64>,
+    len: f64,
+    duration_s: f64,
+    fit_slope: f64,
+    /// Track points up to its end, and the turn figures there.
+    points: usize,
+    max_yaw: f64,
+    max_lat: f64,
 }
 
 impl WindowIntegrator {
@@ -135,6 +154,7 @@ impl WindowIntegrator {
                 max_chord_deviation_m: 0.01,
                 velocity_free: true,
                 velocity_free_max_chord_m: 0.006,
+                short_share: 0.0,
             },
             q: UnitQuaternion::identity(),
             v: Vector3::zeros(),
@@ -153,6 +173,7 @@ impl WindowIntegrator {
             int_x: 0.0,
             last_zx: (0.0, 0.0),
             fit_slope: None,
+            short: None,
             active: false,
         }
     }
@@ -181,6 +202,7 @@ impl WindowIntegrator {
         self.int_x = 0.0;
         self.last_zx = (0.0, 0.0);
         self.fit_slope = None;
+        self.short = None;
         self.active = true;
     }
 
@@ -242,13 +264,29 @@ impl WindowIntegrator {
         self.int_z += 0.5 * (zx.0 + self.last_zx.0) * dt.abs();
         self.int_x += 0.5 * (zx.1 + self.last_zx.1) * dt.abs();
         self.last_zx = zx;
+        // Weights t (T - t) on the acceleration, moved onto the positions: the velocity
+        // the walk started with drops out.
+        let fit = |int_z: f64, int_x: f64| {
+            let sz = duration_s * zx.0 - 2.0 * int_z;
+            let sx = duration_s * zx.1 - 2.0 * int_x;
+            (sz * sx.signum()).atan2(sx.abs())
+        };
+        let share = self.setup.short_share;
+        if share > 0.0 && self.short.is_none() && self.horizontal_m >= share * self.setup.distance_m
+        {
+            self.short = Some(ShortWindow {
+                end: corrected,
+                len: self.horizontal_m,
+                duration_s,
+                fit_slope: fit(self.int_z, self.int_x),
+                points: self.track.len(),
+                max_yaw: self.max_yaw,
+                max_lat: self.max_lat,
+            });
+        }
         if self.at_distance.is_none() && self.horizontal_m >= self.setup.distance_m {
             self.at_distance = Some((corrected, self.horizontal_m, duration_s));
-            // Weights t (T - t) on the acceleration, moved onto the positions: the
-            // velocity the walk started with drops out.
-            let sz = duration_s * zx.0 - 2.0 * self.int_z;
-            let sx = duration_s * zx.1 - 2.0 * self.int_x;
-            self.fit_slope = Some((sz * sx.signum()).atan2(sx.abs()));
+            self.fit_slope = Some(fit(self.int_z, self.int_x));
         }
         if self.at_distance.is_some()
             && self.horizontal_m >= self.setup.distance_m + self.setup.check_extra_m
@@ -286,54 +324,106 @@ impl WindowIntegrator {
     }
 
     fn evaluate(&self) -> Result<WindowGeometry, RejectReason> {
-        let s = &self.setup;
         let Some((end, len, duration_s)) = self.at_distance else {
             return Err(RejectReason::TooShort {
                 distance_m: self.horizontal_m,
             });
         };
-        if self.max_yaw > s.max_yaw_rate_rps || self.max_lat > s.max_lateral_acc_mps2 {
+        let whole = Span {
+            end,
+            len,
+            duration_s,
+            fit_slope: self.fit_slope,
+            points: self.track.len(),
+            max_yaw: self.max_yaw,
+            max_lat: self.max_lat,
+            limit_share: 1.0,
+        };
+        let r = self.evaluate_span(&whole);
+        // A path that bends or turns past its first part (a speed bump ahead of the
+        // stop line, a turn begun at the line) keeps that part as a shorter window.
+        let bent = matches!(
+            r,
+            Err(RejectReason::SlopeNotConstant { .. } | RejectReason::Turning { .. })
+        );
+        match self.short {
+            Some(w) if bent => {
+                let short = Span {
+                    end: w.end,
+                    len: w.len,
+                    duration_s: w.duration_s,
+                    fit_slope: Some(w.fit_slope),
+                    points: w.points,
+                    max_yaw: w.max_yaw,
+                    max_lat: w.max_lat,
+                    // A bend of one curvature leaves a path of half the length a quarter
+                    // as far from its chord.
+                    limit_share: self.setup.short_share.powi(2),
+                };
+                self.evaluate_span(&short).or(r)
+            }
+            _ => r,
+        }
+    }
+
+    fn evaluate_span(&self, w: &Span) -> Result<WindowGeometry, RejectReason> {
+        let s = &self.setup;
+        if w.max_yaw > s.max_yaw_rate_rps || w.max_lat > s.max_lateral_acc_mps2 {
             return Err(RejectReason::Turning {
-                yaw_rate_dps: self.max_yaw.to_degrees(),
-                lateral_acc_mps2: self.max_lat,
+                yaw_rate_dps: w.max_yaw.to_degrees(),
+                lateral_acc_mps2: w.max_lat,
             });
         }
         // Travel direction against the body heading at the start: +1 when the walk
         // goes nose-first (forward drive, forward in time), -1 otherwise.
-        let along = end.x * self.heading.0 + end.y * self.heading.1;
+        let along = w.end.x * self.heading.0 + w.end.y * self.heading.1;
         let sign = if along >= 0.0 { 1.0 } else { -1.0 };
-        let height = end.z;
-        let slope_rad = (sign * height).atan2(len);
-        // Largest distance of the whole walked path from the chord joining its ends
-        // (Fig. 11), the part past the window included.
-        let (xl, zl) = self.track.last().copied().unwrap_or((len, height));
+        let height = w.end.z;
+        let slope_rad = (sign * height).atan2(w.len);
+        // Largest distance of the walked path from the chord joining its ends (Fig.
+        // 11), the part checked past the window included.
+        let track = &self.track[..w.points.clamp(1, self.track.len())];
+        let (xl, zl) = track.last().copied().unwrap_or((w.len, height));
         let norm = xl.hypot(zl).max(1e-9);
-        let dev = self
-            .track
+        let dev = track
             .iter()
             .map(|&(x, z)| (z * xl - x * zl).abs() / norm)
             .fold(0.0, f64::max);
-        if dev > s.max_chord_deviation_m {
+        if dev > s.max_chord_deviation_m * w.limit_share {
             return Err(RejectReason::SlopeNotConstant {
                 chord_deviation_m: dev,
             });
         }
         // A path bent by more than `velocity_free_max_chord_m` may hold a grade change,
         // which the velocity-free fit would partly read as a start velocity.
-        let slope_rad = match self.fit_slope {
-            Some(f) if s.velocity_free && dev <= s.velocity_free_max_chord_m => f,
+        let slope_rad = match w.fit_slope {
+            Some(f) if s.velocity_free && dev <= s.velocity_free_max_chord_m * w.limit_share => f,
             _ => slope_rad,
         };
         Ok(WindowGeometry {
             slope_rad,
-            distance_m: len,
-            duration_s,
+            distance_m: w.len,
+            duration_s: w.duration_s,
             start_s: self.t_start_s,
             chord_deviation_m: dev,
-            max_yaw_rate_rps: self.max_yaw,
-            max_lateral_acc_mps2: self.max_lat,
+            max_yaw_rate_rps: w.max_yaw,
+            max_lateral_acc_mps2: w.max_lat,
         })
     }
+}
+
+/// The part of a walk a window is judged on.
+struct Span {
+    end: Vector3<f64>,
+    len: f64,
+    duration_s: f64,
+    fit_slope: Option<f64>,
+    /// Track points up to the end of the straightness check.
+    points: usize,
+    max_yaw: f64,
+    max_lat: f64,
+    /// Share of the chord limits that applies.
+    limit_share: f64,
 }
 
 #[cfg(test)]
@@ -358,6 +448,7 @@ mod tests {
             max_chord_deviation_m: 0.01,
             velocity_free: true,
             velocity_free_max_chord_m: 0.006,
+            short_share: 0.0,
         }
     }
 
@@ -511,6 +602,58 @@ mod tests {
             }
             other => panic!("expected rejection, got {other:?}"),
         }
+    }
+
+    /// Walk a drive-off at 1 m/s^2 over a road that is level up to `s0` and rises into a
+    /// 6 % grade over the next 0.4 m, with the short fallback at `short_share`.
+    fn walk_into_a_rise(s0: f64, short_share: f64) -> Result<WindowGeometry, RejectReason> {
+        let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
+        let mut w = WindowIntegrator::with_capacity(4000);
+        let setup = WindowSetup {
+            short_share,
+            check_extra_m: 0.5,
+            ..setup(q0)
+        };
+        w.start(setup, Vector3::zeros());
+        let (a, top) = (1.0, 0.06f64.atan());
+        for k in 0..2000 {
+            let t = k as f64 * 0.01;
+            let (s, v) = (0.5 * a * t * t, a * t);
+            let gam = top * ((s - s0) / 0.4).clamp(0.0, 1.0);
+            let dgam_ds = if (s0..s0 + 0.4).contains(&s) {
+                top / 0.4
+            } else {
+                0.0
+            };
+            let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
+            let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
+            let acc_n = tan * a + nrm * (v * v * dgam_ds) + Vector3::new(0.0, 0.0, G);
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -gam);
+            let rate_dps = [0.0, -(dgam_ds * v).to_degrees(), 0.0];
+            if let Step::Done(r) =
+                w.push(&ImuSample::new(t, (q.inverse() * acc_n).into(), rate_dps))
+            {
+                return r;
+            }
+        }
+        panic!("window must complete");
+    }
+
+    #[test]
+    fn a_rise_past_the_first_half_leaves_the_straight_half_as_a_window() {
+        // 2 m windows checked 0.5 m further; the rise begins 1.4 m out.
+        assert!(matches!(
+            walk_into_a_rise(1.4, 0.0),
+            Err(RejectReason::SlopeNotConstant { .. })
+        ));
+        let g = walk_into_a_rise(1.4, 0.5).expect("the first metre is straight");
+        assert!((g.distance_m - 1.0).abs() < 0.02, "{}", g.distance_m);
+        assert!(g.slope_rad.abs() < 1e-6, "{}", g.slope_rad.to_degrees());
+        // A rise inside the first half leaves no straight part.
+        assert!(matches!(
+            walk_into_a_rise(0.6, 0.5),
+            Err(RejectReason::SlopeNotConstant { .. })
+        ));
     }
 
     #[test]
