@@ -564,39 +564,7 @@ mod tests {
     #[test]
     fn slope_change_inside_window_is_rejected() {
         // Level for 0.8 m, a vertical curve up to 6 % by 1.2 m, then 6 %: the chord test must see it.
-        let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
-        let mut w = WindowIntegrator::with_capacity(4000);
-        w.start(setup(q0), Vector3::zeros());
-        let (a, top) = (1.0, 0.06f64.atan());
-        let grade = |s: f64| {
-            (
-                top * ((s - 0.8) / 0.4).clamp(0.0, 1.0),
-                if (0.8..1.2).contains(&s) {
-                    top / 0.4
-                } else {
-                    0.0
-                },
-            )
-        };
-        let mut res = None;
-        for k in 0..2000 {
-            let t = k as f64 * 0.01;
-            let (s, v) = (0.5 * a * t * t, a * t);
-            let (gam, dgam_ds) = grade(s);
-            // Tangential plus centripetal acceleration along the vertical curve.
-            let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
-            let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
-            let acc_n = tan * a + nrm * (v * v * dgam_ds) + Vector3::new(0.0, 0.0, G);
-            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -gam);
-            let rate_dps = [0.0, -(dgam_ds * v).to_degrees(), 0.0];
-            if let Step::Done(r) =
-                w.push(&ImuSample::new(t, (q.inverse() * acc_n).into(), rate_dps))
-            {
-                res = Some(r);
-                break;
-            }
-        }
-        match res.unwrap() {
+        match walk_into_a_rise(0.8, 0.0, 0.0) {
             Err(RejectReason::SlopeNotConstant { chord_deviation_m }) => {
                 assert!(chord_deviation_m > 0.015, "{chord_deviation_m}")
             }
@@ -604,14 +572,19 @@ mod tests {
         }
     }
 
-    /// Walk a drive-off at 1 m/s^2 over a road that is level up to `s0` and rises into a
-    /// 6 % grade over the next 0.4 m, with the short fallback at `short_share`.
-    fn walk_into_a_rise(s0: f64, short_share: f64) -> Result<WindowGeometry, RejectReason> {
+    /// Walk a 2 m window of a drive-off at 1 m/s^2 over a road that is level up to `s0`
+    /// and rises into a 6 % grade over the next 0.4 m, checked `check_extra_m` further,
+    /// with the short fallback at `short_share`.
+    fn walk_into_a_rise(
+        s0: f64,
+        check_extra_m: f64,
+        short_share: f64,
+    ) -> Result<WindowGeometry, RejectReason> {
         let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
         let mut w = WindowIntegrator::with_capacity(4000);
         let setup = WindowSetup {
             short_share,
-            check_extra_m: 0.5,
+            check_extra_m,
             ..setup(q0)
         };
         w.start(setup, Vector3::zeros());
@@ -625,6 +598,7 @@ mod tests {
             } else {
                 0.0
             };
+            // Tangential plus centripetal acceleration along the vertical curve.
             let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
             let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
             let acc_n = tan * a + nrm * (v * v * dgam_ds) + Vector3::new(0.0, 0.0, G);
@@ -643,15 +617,15 @@ mod tests {
     fn a_rise_past_the_first_half_leaves_the_straight_half_as_a_window() {
         // 2 m windows checked 0.5 m further; the rise begins 1.4 m out.
         assert!(matches!(
-            walk_into_a_rise(1.4, 0.0),
+            walk_into_a_rise(1.4, 0.5, 0.0),
             Err(RejectReason::SlopeNotConstant { .. })
         ));
-        let g = walk_into_a_rise(1.4, 0.5).expect("the first metre is straight");
+        let g = walk_into_a_rise(1.4, 0.5, 0.5).expect("the first metre is straight");
         assert!((g.distance_m - 1.0).abs() < 0.02, "{}", g.distance_m);
         assert!(g.slope_rad.abs() < 1e-6, "{}", g.slope_rad.to_degrees());
         // A rise inside the first half leaves no straight part.
         assert!(matches!(
-            walk_into_a_rise(0.6, 0.5),
+            walk_into_a_rise(0.6, 0.5, 0.5),
             Err(RejectReason::SlopeNotConstant { .. })
         ));
     }
