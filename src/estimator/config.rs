@@ -85,8 +85,9 @@ pub struct EstimatorConfig {
     /// beyond its first part falls back to that part: this share of
     /// `window_distance_m`, checked over its own length against the chord limits times
     /// the square of the share (a bend of one curvature leaves a path of half the length
-    /// a quarter as far from its chord), and weighted as the shorter window it is. 0 turns the fallback off. Creeps and rolling stops that never cover the
-    /// whole distance still give no window.
+    /// a quarter as far from its chord), and weighted as the shorter window it is. 0
+    /// turns the fallback off. Creeps and rolling stops that never cover the whole
+    /// distance still give no window.
     pub short_window_share: f64,
     /// Windows with a yaw rate above this are rejected as turning, deg/s.
     pub max_yaw_rate_dps: f64,
