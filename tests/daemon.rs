@@ -92,6 +92,15 @@ fn config_mistakes_name_the_file_and_field() {
     ));
     assert!(e.contains("short_stop_weight"), "{e}");
     let e = err_of(load_variant(
+        "half",
+        &(reference_toml() + "short_window_share = 1.0\n"),
+        None,
+    ));
+    assert!(
+        e.contains("short_window_share") && e.contains("below 1"),
+        "{e}"
+    );
+    let e = err_of(load_variant(
         "gate",
         &(reference_toml() + "rest_swing_gate_mps2 = -0.05\n"),
         None,
