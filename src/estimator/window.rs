@@ -118,21 +118,8 @@ pub struct WindowIntegrator {
     /// Slope of the velocity-free fit when `distance_m` was reached, rad.
     fit_slope: Option<f64>,
     /// The short fallback window, taken as the walk passed its distance.
-    short: Option<ShortWindow>,
+    short: Option<Span>,
     active: bool,
-}
-
-/// What the short fallback window needs.
-#[derive(Debug, Clone, Copy)]
-struct ShortWindow {
-    end: Vector3<f64>,
-    len: f64,
-    duration_s: f64,
-    fit_slope: f64,
-    /// Track points up to its end, and the turn figures there.
-    points: usize,
-    max_yaw: f64,
-    max_lat: f64,
 }
 
 impl WindowIntegrator {
@@ -266,27 +253,30 @@ impl WindowIntegrator {
         self.last_zx = zx;
         // Weights t (T - t) on the acceleration, moved onto the positions: the velocity
         // the walk started with drops out.
-        let fit = |int_z: f64, int_x: f64| {
-            let sz = duration_s * zx.0 - 2.0 * int_z;
-            let sx = duration_s * zx.1 - 2.0 * int_x;
+        let fit = || {
+            let sz = duration_s * zx.0 - 2.0 * self.int_z;
+            let sx = duration_s * zx.1 - 2.0 * self.int_x;
             (sz * sx.signum()).atan2(sx.abs())
         };
         let share = self.setup.short_share;
         if share > 0.0 && self.short.is_none() && self.horizontal_m >= share * self.setup.distance_m
         {
-            self.short = Some(ShortWindow {
+            self.short = Some(Span {
                 end: corrected,
                 len: self.horizontal_m,
                 duration_s,
-                fit_slope: fit(self.int_z, self.int_x),
+                fit_slope: Some(fit()),
                 points: self.track.len(),
                 max_yaw: self.max_yaw,
                 max_lat: self.max_lat,
+                // A bend of one curvature leaves a path of half the length a quarter as
+                // far from its chord.
+                limit_share: share * share,
             });
         }
         if self.at_distance.is_none() && self.horizontal_m >= self.setup.distance_m {
             self.at_distance = Some((corrected, self.horizontal_m, duration_s));
-            self.fit_slope = Some(fit(self.int_z, self.int_x));
+            self.fit_slope = Some(fit());
         }
         if self.at_distance.is_some()
             && self.horizontal_m >= self.setup.distance_m + self.setup.check_extra_m
@@ -346,22 +336,8 @@ impl WindowIntegrator {
             r,
             Err(RejectReason::SlopeNotConstant { .. } | RejectReason::Turning { .. })
         );
-        match self.short {
-            Some(w) if bent => {
-                let short = Span {
-                    end: w.end,
-                    len: w.len,
-                    duration_s: w.duration_s,
-                    fit_slope: Some(w.fit_slope),
-                    points: w.points,
-                    max_yaw: w.max_yaw,
-                    max_lat: w.max_lat,
-                    // A bend of one curvature leaves a path of half the length a quarter
-                    // as far from its chord.
-                    limit_share: self.setup.short_share.powi(2),
-                };
-                self.evaluate_span(&short).or(r)
-            }
+        match &self.short {
+            Some(short) if bent => self.evaluate_span(short).or(r),
             _ => r,
         }
     }
@@ -413,6 +389,7 @@ impl WindowIntegrator {
 }
 
 /// The part of a walk a window is judged on.
+#[derive(Debug, Clone, Copy)]
 struct Span {
     end: Vector3<f64>,
     len: f64,
