@@ -38,7 +38,7 @@ pub use window::RejectReason;
 use gravity::{GravityFilter, pitch_from};
 use nalgebra::Vector3;
 use ring::Ring;
-use standstill::{ForwardCtx, MIN_SETTLED_SAMPLES, Standstill};
+use standstill::{ForwardCtx, Standstill};
 use window::WindowIntegrator;
 
 /// The estimator. See the module documentation.
@@ -199,7 +199,7 @@ impl Estimator {
     /// settled samples behind it. `None` while moving or before anything settled.
     pub fn standstill_pitch(&self) -> Option<(f64, f64)> {
         let st = self.standstill?;
-        if st.seg_n < MIN_SETTLED_SAMPLES {
+        if st.seg_n < self.min_settled() {
             return None;
         }
         Some((pitch_from(&st.mean())?.to_degrees(), st.settled_s()))
@@ -253,7 +253,7 @@ impl Estimator {
         self.flush_block(t_s, emit);
         if let Some(st) = self.standstill
             && !st.settled_done
-            && st.seg_n >= MIN_SETTLED_SAMPLES
+            && st.seg_n >= self.min_settled()
         {
             self.on_settled(t_s, emit);
         }

@@ -73,14 +73,17 @@ const QUEUE_STALE_S: f64 = 1.0;
 /// least this share of them is below it; fewer, and the gyro's noise alone exceeds the
 /// gate (a gyro noisier than it is sized for), so all of them do.
 const CALM_SHARE_MIN: f64 = 0.25;
-/// Gain of the running share of calm samples the gravity filter looks at, per sample.
-const CALM_SHARE_GAIN: f64 = 0.02;
+/// Time constant of the running share of calm samples the gravity filter looks at, s.
+const CALM_SHARE_TAU_S: f64 = 0.5;
 
 /// A pause this long in the quiet samples ends a load block, s.
 const BLOCK_GAP_S: f64 = 0.1;
 
-/// Fewest settled samples a reference is taken from.
-pub(super) const MIN_SETTLED_SAMPLES: u64 = 5;
+/// Shortest stretch of settled samples a reference or a load block is taken from, s,
+/// and the fewest samples in it: quiet moments between the swings of a body, or before
+/// a load ramps in, last a few hundredths of a second at any IMU rate.
+const MIN_SETTLED_S: f64 = 0.05;
+const MIN_SETTLED_SAMPLES: u64 = 3;
 
 /// A stop's reference shorter than this does not average out the body's rocking
 /// (one period of the pitch mode of a soft suspension, about 1 Hz): a load change
@@ -155,9 +158,9 @@ pub(super) struct LivePitch {
 
 impl Standstill {
     /// Force sum and sample count the current block stands for: its calm samples when
-    /// at least a quarter of them (and `MIN_SETTLED_SAMPLES`) are calm, else all.
-    pub(super) fn block_force(&self) -> (Vector3<f64>, u64) {
-        if self.block_calm_n >= MIN_SETTLED_SAMPLES
+    /// at least a quarter of them (and `min_n`) are calm, else all.
+    pub(super) fn block_force(&self, min_n: u64) -> (Vector3<f64>, u64) {
+        if self.block_calm_n >= min_n
             && self.block_calm_n as f64 >= CALM_SHARE_MIN * self.block_n as f64
         {
             (self.block_calm_sum, self.block_calm_n)
@@ -197,6 +200,12 @@ pub(super) struct ForwardCtx {
 }
 
 impl Estimator {
+    /// Fewest settled samples a reference or a load block stands on: `MIN_SETTLED_S` at
+    /// the IMU's rate, and never fewer than `MIN_SETTLED_SAMPLES`.
+    pub(super) fn min_settled(&self) -> u64 {
+        (self.samples_in(MIN_SETTLED_S) as u64).max(MIN_SETTLED_SAMPLES)
+    }
+
     pub(super) fn begin_standstill(&mut self, q0_t: f64, t_now: f64, emit: &mut dyn FnMut(Event)) {
         // A window of the previous stop no longer has a partner coming.
         self.open_pair = None;
@@ -368,10 +377,12 @@ impl Estimator {
         let swing = self.lever_acc_at(self.index_at(s.t_s));
         let f = s.acc() - swing;
         let calm = swing.norm() <= self.cfg.rest_swing_gate_mps2;
-        self.calm_share += (f64::from(u8::from(calm)) - self.calm_share) * CALM_SHARE_GAIN;
+        let gain = (self.sample_dt_s.0 / CALM_SHARE_TAU_S).min(1.0);
+        self.calm_share += (f64::from(u8::from(calm)) - self.calm_share) * gain;
         if calm || self.calm_share < CALM_SHARE_MIN {
             self.update_gravity(s.t_s, &f);
         }
+        let min_n = self.min_settled();
         let Some(st) = self.standstill.as_mut() else {
             self.update_bias(s);
             return;
@@ -380,7 +391,7 @@ impl Estimator {
         // ramped in) closes it, or drops it when it is too short to stand for a pitch
         // (a few samples between two swings of the body).
         if st.block_n > 0 && s.t_s - st.block_last_s > BLOCK_GAP_S {
-            if st.block_n >= MIN_SETTLED_SAMPLES {
+            if st.block_n >= min_n {
                 let t_last = st.block_last_s;
                 self.close_block(t_last, emit);
             } else {
@@ -424,13 +435,14 @@ impl Estimator {
     /// acceleration window the one after it.
     pub(super) fn close_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
         let thr = self.cfg.load_change_deg.to_radians();
+        let min_n = self.min_settled();
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
         if st.block_n == 0 {
             return;
         }
-        let (block, block_n) = st.block_force();
+        let (block, block_n) = st.block_force(min_n);
         let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
         let gyro_mean = st.block_gyro_sum / st.block_n as f64;
         let gyro_n = st.block_n;
@@ -542,7 +554,7 @@ impl Estimator {
             self.commit_settled(&x, emit);
         }
         let Some(st) = self.standstill else { return };
-        if st.block_n >= MIN_SETTLED_SAMPLES
+        if st.block_n >= self.min_settled()
             && t_s - st.block_last_s > lag + BLOCK_GAP_S
             && self
                 .settle_queue
@@ -558,7 +570,7 @@ impl Estimator {
     pub(super) fn flush_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
         if self
             .standstill
-            .is_some_and(|st| st.block_n >= MIN_SETTLED_SAMPLES)
+            .is_some_and(|st| st.block_n >= self.min_settled())
         {
             self.close_block(t_s, emit);
         }
@@ -710,7 +722,7 @@ impl Estimator {
             return;
         };
         let n = self.hist.len();
-        if !self.cfg.live_standstill_pitch || st.seg_n < MIN_SETTLED_SAMPLES || n < 2 {
+        if !self.cfg.live_standstill_pitch || st.seg_n < self.min_settled() || n < 2 {
             self.live_offset_rad = 0.0;
             return;
         }
@@ -753,7 +765,7 @@ impl Estimator {
     pub(super) fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
         self.flush_block(t_now, emit);
         let Some(st) = self.standstill else { return };
-        if !st.settled_done && st.seg_n >= MIN_SETTLED_SAMPLES {
+        if !st.settled_done && st.seg_n >= self.min_settled() {
             // A short stop: use what settled.
             self.on_settled(t_now, emit);
         }
@@ -771,7 +783,7 @@ impl Estimator {
         // there the car moves. The current sample is pushed by the caller.
         let n = self.hist.len();
         let floor = self.index_at(st.t_rest_s);
-        let settled = st.seg_n >= MIN_SETTLED_SAMPLES;
+        let settled = st.seg_n >= self.min_settled();
         if settled {
             self.update_stop_bias(t_now, &st.mean(), st.seg_n);
         }

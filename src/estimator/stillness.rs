@@ -88,10 +88,11 @@ impl Estimator {
             })
     }
 
-    /// Eq. 7's alpha, made smaller for a noisy gyro so that the bias keeps the spread
-    /// it has with the gyro the gates are sized for.
+    /// Eq. 7's alpha per sample at the IMU's rate, made smaller for a noisy gyro so
+    /// that the bias keeps the spread it has with the gyro the gates are sized for.
     fn bias_alpha(&self) -> f64 {
-        self.cfg.gyro_bias_alpha / self.gyro_gate_scale().powi(2)
+        let alpha = (self.sample_dt_s.0 / self.cfg.gyro_bias_time_constant_s).min(1.0);
+        alpha / self.gyro_gate_scale().powi(2)
     }
 
     /// `bias_gate_dps` widened for a noisy gyro, rad/s.
