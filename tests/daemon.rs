@@ -81,10 +81,10 @@ fn config_mistakes_name_the_file_and_field() {
     assert!(e.contains("acc.signals") && e.contains("needs 3"), "{e}");
     let e = err_of(load_variant(
         "est",
-        &(reference_toml() + "gyro_bias_walk_dps_rts = 0.0\n"),
+        &(reference_toml() + "gyro_bias_time_constant_s = 0.0\n"),
         None,
     ));
-    assert!(e.contains("gyro_bias_walk_dps_rts"), "{e}");
+    assert!(e.contains("gyro_bias_time_constant_s"), "{e}");
     let e = err_of(load_variant(
         "share",
         &(reference_toml() + "short_stop_weight = 0.0\n"),

@@ -57,13 +57,10 @@ pub struct EstimatorConfig {
     /// this much speed since it was last surely at rest (a drive-off or creep inside the
     /// wheel sensors' dead zone), m/s.
     pub drive_off_speed_mps: f64,
-    /// Random walk of the gyro bias, deg/s per sqrt(s) (the gyro's datasheet, or its
-    /// bias instability over temperature). With `gyro_noise_dps_rthz` it sets the gain
-    /// of eq. 7: the bias is relearnt quickly at a stop after a long drive and slowly
-    /// within a stop, where a filter of fixed 1 s time constant (the paper's alpha of
-    /// 0.01 at 100 Hz) learnt the slow start and end of a load ramping in over several
-    /// seconds as bias, and a 6 s ramp came out 0.25 deg short.
-    pub gyro_bias_walk_dps_rts: f64,
+    /// Time constant of the gyro-bias low-pass filter of eq. 7, s. Its coefficient
+    /// alpha is the IMU's sample interval over this (0.01 per sample at 100 Hz), so the
+    /// bias follows the same span of settled samples at any IMU rate.
+    pub gyro_bias_time_constant_s: f64,
     /// Horizontal travel of one slope window, T_d of eq. 15, m. The paper uses 2 m. With
     /// the velocity-free slope a longer window no longer integrates a start velocity
     /// for longer, and the errors that do not grow with its duration (the reference,
@@ -197,7 +194,7 @@ impl Default for EstimatorConfig {
             settle_time_s: 3.0,
             drive_off_speed_mps: 0.06,
             gravity_walk_mps2_rts: 0.0005,
-            gyro_bias_walk_dps_rts: 0.002,
+            gyro_bias_time_constant_s: 1.0,
             window_distance_m: 3.0,
             chord_check_extra_m: 1.0,
             max_chord_deviation_m: 0.012,
@@ -322,11 +319,11 @@ impl EstimatorConfig {
                 hint: "choose a share in (0, 1] of a settled window's weight; 0.28 is measured",
             });
         }
-        if !(self.gyro_bias_walk_dps_rts > 0.0 && self.gyro_bias_walk_dps_rts <= 1.0) {
+        if !(self.gyro_bias_time_constant_s >= 0.01 && self.gyro_bias_time_constant_s <= 1e4) {
             return Err(ConfigError {
-                field: "gyro_bias_walk_dps_rts",
-                value: self.gyro_bias_walk_dps_rts,
-                hint: "take the bias random walk from the gyro's datasheet, above 0 and at most 1 deg/s/sqrt(s); 0.002 is typical of automotive MEMS",
+                field: "gyro_bias_time_constant_s",
+                value: self.gyro_bias_time_constant_s,
+                hint: "choose 0.01 to 10000 s; 1 s is the paper's alpha of 0.01 at 100 Hz",
             });
         }
         pos("window_distance_m", self.window_distance_m)?;

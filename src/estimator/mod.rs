@@ -61,9 +61,6 @@ pub struct Estimator {
     travelled_m: f64,
     standstill: Option<Standstill>,
     bias_rps: Option<Vector3<f64>>,
-    /// Variance of `bias_rps` per axis, rad^2/s^2, and the time it was last updated, s.
-    bias_var_rps2: f64,
-    bias_t_s: Option<f64>,
     /// Settled specific-force magnitude, the g of eq. 12-13: measured rather than
     /// nominal so that an accelerometer bias along z cancels.
     gravity: Option<GravityFilter>,
@@ -144,8 +141,6 @@ impl Estimator {
             travelled_m: 0.0,
             standstill: None,
             bias_rps: None,
-            bias_var_rps2: f64::INFINITY,
-            bias_t_s: None,
             bias_window_ok: false,
             gyro_noise: stillness::GyroNoise::default(),
             still_mean_acc: Vector3::zeros(),

@@ -7,10 +7,6 @@ use super::lever::LeverFit;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-/// Uncertainty of a gyro bias restored from a saved state, deg/s: its random walk over
-/// a parked hour or so.
-const RESTORED_BIAS_SD_DPS: f64 = 0.05;
-
 /// What the daemon persists between runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EstimatorState {
@@ -113,9 +109,6 @@ impl Estimator {
         self.bias_rps = st
             .gyro_bias_dps
             .map(|b| Vector3::from(b).map(f64::to_radians));
-        // Known to a few hundredths of a deg/s; how long ago it was learnt is unknown.
-        self.bias_var_rps2 = RESTORED_BIAS_SD_DPS.to_radians().powi(2);
-        self.bias_t_s = None;
         self.baseline_pitch_rad = st.baseline_pitch_deg.map(f64::to_radians);
         if let Some(g) = st.gravity_mps2
             && !(g.is_finite() && (5.0..15.0).contains(&g))

@@ -228,9 +228,6 @@ impl Estimator {
         if self.bias_rps.is_none() {
             // First standstill ever: start eq. 7 from the mean rate.
             self.bias_rps = Some(w_mean / k.max(1) as f64);
-            self.bias_var_rps2 = f64::INFINITY;
-            self.bias_t_s = None;
-            self.bias_gain(t_now, k as u64);
         }
         // The car came to rest where the specific force settled; constant braking
         // has no variance, so the stillness test alone would start too early.
@@ -458,7 +455,7 @@ impl Estimator {
             st.seg_n = block_n;
             st.seg_first_s = block_t0;
             st.seg_last_s = block_last;
-            self.teach_bias_block(&gyro_mean, gyro_n, block_last, early);
+            self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
         let block_mean = block / block_n as f64;
@@ -470,7 +467,7 @@ impl Estimator {
             st.seg_n += block_n;
             st.seg_last_s = block_last;
             st.pending = None;
-            self.teach_bias_block(&gyro_mean, gyro_n, block_last, early);
+            self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
         match st.pending.take() {

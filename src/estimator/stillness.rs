@@ -60,13 +60,7 @@ impl Estimator {
     /// carries afterwards. So a block teaches only when it began `BIAS_SETTLE_S` after
     /// the car came to rest (`early` otherwise) and its own mean rate is within the gate
     /// of the bias. With no bias yet, or `still_blocks_teach_bias` off, it teaches at once.
-    pub(super) fn teach_bias_block(
-        &mut self,
-        mean_rps: &Vector3<f64>,
-        n: u64,
-        t_s: f64,
-        early: bool,
-    ) {
+    pub(super) fn teach_bias_block(&mut self, mean_rps: &Vector3<f64>, n: u64, early: bool) {
         let gate = self.bias_gate_rps();
         let teach = match self.bias_rps {
             None => true,
@@ -74,7 +68,7 @@ impl Estimator {
             Some(b) => !early && (mean_rps - b).norm() <= gate,
         };
         if teach {
-            self.update_bias_block(mean_rps, n, t_s);
+            self.update_bias_block(mean_rps, n);
         }
     }
 
@@ -94,26 +88,11 @@ impl Estimator {
             })
     }
 
-    /// Gain of eq. 7 for the mean of `n` settled samples ending at `t_s`: the Kalman
-    /// gain of a bias that walks by `gyro_bias_walk_dps_rts` and is seen through the
-    /// gyro's white noise. Its uncertainty grows with the time since it last learnt,
-    /// driving included, so a stop after a long drive relearns quickly, and shrinks with
-    /// every settled sample, so a stop's own slow turns (a load ramping in over seconds)
-    /// move it little. At rest it settles to a time constant of noise density over walk
-    /// (0.01 deg/s/sqrt(Hz) over 0.002 deg/s/sqrt(s): 5 s). The noise is the configured
-    /// density widened as the gates are for a noisier gyro.
-    pub(super) fn bias_gain(&mut self, t_s: f64, n: u64) -> f64 {
-        let walk = self.cfg.gyro_bias_walk_dps_rts.to_radians();
-        if let Some(t0) = self.bias_t_s {
-            self.bias_var_rps2 += walk * walk * (t_s - t0).max(0.0);
-        }
-        self.bias_t_s = Some(self.bias_t_s.map_or(t_s, |t0| t0.max(t_s)));
-        let noise = (self.cfg.gyro_noise_dps_rthz * self.gyro_gate_scale()).to_radians();
-        let r = noise * noise / (n.max(1) as f64 * self.sample_dt_s.0);
-        let p = self.bias_var_rps2;
-        let k = if p.is_finite() { p / (p + r) } else { 1.0 };
-        self.bias_var_rps2 = if p.is_finite() { (1.0 - k) * p } else { r };
-        k
+    /// Eq. 7's alpha per sample at the IMU's rate, made smaller for a noisy gyro so
+    /// that the bias keeps the spread it has with the gyro the gates are sized for.
+    fn bias_alpha(&self) -> f64 {
+        let alpha = (self.sample_dt_s.0 / self.cfg.gyro_bias_time_constant_s).min(1.0);
+        alpha / self.gyro_gate_scale().powi(2)
     }
 
     /// `bias_gate_dps` widened for a noisy gyro, rad/s.
@@ -121,9 +100,10 @@ impl Estimator {
         (self.cfg.bias_gate_dps * self.gyro_gate_scale()).to_radians()
     }
 
-    /// Eq. 7 over a block of `n` samples ending at `t_s` whose mean rate was `mean_rps`.
-    pub(super) fn update_bias_block(&mut self, mean_rps: &Vector3<f64>, n: u64, t_s: f64) {
-        let k = self.bias_gain(t_s, n);
+    /// Eq. 7 over a block of `n` samples whose mean rate was `mean_rps`: the same
+    /// low-pass, stepped `n` times at once.
+    pub(super) fn update_bias_block(&mut self, mean_rps: &Vector3<f64>, n: u64) {
+        let k = 1.0 - (1.0 - self.bias_alpha()).powi(n.min(i32::MAX as u64) as i32);
         self.bias_rps = Some(match self.bias_rps {
             Some(b) => b + (mean_rps - b) * k,
             None => *mean_rps,
@@ -132,9 +112,8 @@ impl Estimator {
 
     pub(super) fn update_bias(&mut self, s: &ImuSample) {
         let w = s.gyro_rps();
-        let a = self.bias_gain(s.t_s, 1);
-        // Eq. 7: first-order low-pass of the gyro output while stopped, with the gain
-        // of `bias_gain`.
+        let a = self.bias_alpha();
+        // Eq. 7: first-order low-pass of the gyro output while stopped.
         self.bias_rps = Some(match self.bias_rps {
             Some(b) => w * a + b * (1.0 - a),
             None => w,
@@ -196,40 +175,6 @@ impl GyroNoise {
 #[cfg(test)]
 mod tests {
     use super::GyroNoise;
-    use crate::estimator::{Estimator, EstimatorConfig};
-
-    #[test]
-    fn the_gyro_bias_relearns_after_a_drive_and_holds_within_a_stop() {
-        // 100 Hz, gyro noise 0.01 deg/s/sqrt(Hz), bias walk 0.002 deg/s/sqrt(s).
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-        assert_eq!(est.bias_gain(0.0, 1), 1.0);
-        for i in 1..=1000 {
-            est.bias_gain(f64::from(i) * 0.01, 1);
-        }
-        // Ten seconds at rest: the gain per sample is that of a 5 s time constant
-        // (noise density over walk), a fifth of the paper's 0.01.
-        let at_rest = est.bias_gain(10.01, 1);
-        assert!((at_rest / (0.01 / 5.0) - 1.0).abs() < 0.1, "{at_rest}");
-        // Two minutes of driving later the bias may have walked 0.02 deg/s: the first
-        // samples of the next stop count for much more.
-        let after_drive = est.bias_gain(130.0, 1);
-        assert!(
-            after_drive > 5.0 * at_rest,
-            "{after_drive} against {at_rest}"
-        );
-        // Half a second of samples at once counts as those samples one by one.
-        let mut one_by_one = est.clone();
-        let block = est.bias_gain(130.5, 50);
-        let mut keep = 1.0;
-        for i in 1..=50 {
-            keep *= 1.0 - one_by_one.bias_gain(130.0 + f64::from(i) * 0.01, 1);
-        }
-        assert!(
-            (block - (1.0 - keep)).abs() < 0.02,
-            "{block} against {}",
-            1.0 - keep
-        );
-    }
 
     /// A small deterministic normal generator (Box-Muller on an LCG).
     fn normals(seed: u64) -> impl FnMut() -> f64 {
