@@ -705,14 +705,8 @@ fn a_speed_bump_past_the_stop_line_leaves_the_straight_half_of_the_window() {
 
 /// The load step leveld applied at the load stop (at the stop or as the car pulls
 /// away, not windows later) minus the true step, deg, one per seed. Every stop is left
-/// gently; the load stop lasts `hold_s` and its ramp starts `delay_s` into it; the IMU
-/// samples at `imu_rate_hz`.
-fn load_step_errors(
-    hold_s: [f64; 2],
-    delay_s: [f64; 2],
-    seeds: std::ops::Range<u64>,
-    imu_rate_hz: f64,
-) -> Vec<f64> {
+/// gently; the load stop lasts `hold_s` and its ramp starts `delay_s` into it.
+fn load_step_errors(hold_s: [f64; 2], delay_s: [f64; 2], seeds: std::ops::Range<u64>) -> Vec<f64> {
     let r = RealisticSpec {
         load_stop_short_share: 1.0,
         load_stop_short_hold_s: hold_s,
@@ -723,9 +717,6 @@ fn load_step_errors(
     for seed in seeds {
         let mut s = spec(seed, 6, r.clone());
         s.load_change_at_stop = Some(3);
-        if let Some(sensors) = s.sensors.as_mut() {
-            sensors.imu_rate_hz = imu_rate_hz;
-        }
         let case = &s.cases()[1];
         let plan = case.plan.as_ref().unwrap();
         let (k, _) = plan.load_change.unwrap();
@@ -768,7 +759,7 @@ fn a_load_ramping_in_through_a_whole_stop_is_measured_as_the_car_pulls_away() {
     // The load starts to ramp in 1.0-1.2 s into a stop of 4.0-4.3 s, as the standstill
     // begins, and the car pulls away as the ramp ends: no sample of the stop settles.
     // Such a stop used to give no load change at all.
-    assert_load_steps_measured(&load_step_errors([4.0, 4.3], [1.0, 1.2], 61..67, 100.0));
+    assert_load_steps_measured(&load_step_errors([4.0, 4.3], [1.0, 1.2], 61..67));
 }
 
 #[test]
@@ -777,7 +768,7 @@ fn a_load_ramping_in_after_the_first_quiet_moment_of_a_stop_is_followed_to_drive
     // samples, and ends as the car pulls away. The block holding those samples used to stay open
     // through the ramp, as no further quiet sample came to close it: the stop had no
     // settled reference, and the live pitch could not follow the ramp.
-    assert_load_steps_measured(&load_step_errors([4.3, 4.6], [1.3, 1.5], 71..77, 100.0));
+    assert_load_steps_measured(&load_step_errors([4.3, 4.6], [1.3, 1.5], 71..77));
 }
 
 #[test]
