@@ -703,6 +703,18 @@ fn a_speed_bump_past_the_stop_line_leaves_the_straight_half_of_the_window() {
     );
 }
 
+/// The loaded case of `s`, simulated: its drive, when its load stop begins and ends
+/// (s), and the true load step there (deg).
+fn load_stop(s: &DriveSpec) -> (leveld::sim::Drive, f64, f64, f64) {
+    let case = &s.cases()[1];
+    let plan = case.plan.as_ref().unwrap();
+    let (k, _) = plan.load_change.unwrap();
+    let (t_stop, t_go, ..) = plan.stops[k];
+    let drive = simulate(&case.scenario);
+    let step = drive.truth_at(t_go).load_pitch_deg - drive.truth_at(t_stop).load_pitch_deg;
+    (drive, t_stop, t_go, step)
+}
+
 /// The load step leveld applied at the load stop (at the stop or as the car pulls
 /// away, not windows later) minus the true step, deg, one per seed. Every stop is left
 /// gently; the load stop lasts `hold_s` and its ramp starts `delay_s` into it.
@@ -717,12 +729,7 @@ fn load_step_errors(hold_s: [f64; 2], delay_s: [f64; 2], seeds: std::ops::Range<
     for seed in seeds {
         let mut s = spec(seed, 6, r.clone());
         s.load_change_at_stop = Some(3);
-        let case = &s.cases()[1];
-        let plan = case.plan.as_ref().unwrap();
-        let (k, _) = plan.load_change.unwrap();
-        let (t_stop, t_go, ..) = plan.stops[k];
-        let drive = simulate(&case.scenario);
-        let step = drive.truth_at(t_go).load_pitch_deg - drive.truth_at(t_stop).load_pitch_deg;
+        let (drive, t_stop, t_go, step) = load_stop(&s);
         let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
         let mut ev = Vec::new();
         for input in drive.merged() {
@@ -786,12 +793,7 @@ fn a_load_change_reaches_the_estimate_before_drive_off_at_50_and_200_hz() {
             if let Some(sensors) = s.sensors.as_mut() {
                 sensors.imu_rate_hz = rate_hz;
             }
-            let case = &s.cases()[1];
-            let plan = case.plan.as_ref().unwrap();
-            let (k, _) = plan.load_change.unwrap();
-            let (t_stop, t_go, ..) = plan.stops[k];
-            let drive = simulate(&case.scenario);
-            let step = drive.truth_at(t_go).load_pitch_deg - drive.truth_at(t_stop).load_pitch_deg;
+            let (drive, t_stop, t_go, step) = load_stop(&s);
             let [at_stop, before_go] = estimates_at(&drive, [t_stop, t_go]);
             let seen = before_go.unwrap() - at_stop.unwrap();
             eprintln!("{rate_hz} Hz seed {seed}: step {step:+.3}, before drive-off {seen:+.3}");
