@@ -85,6 +85,16 @@ fn config_mistakes_name_the_file_and_field() {
         None,
     ));
     assert!(e.contains("gyro_bias_time_constant_s"), "{e}");
+    // A key of an earlier version names what replaced it.
+    let e = err_of(load_variant(
+        "renamed",
+        &(reference_toml() + "gyro_bias_alpha = 0.01\n"),
+        None,
+    ));
+    assert!(
+        e.contains("estimator.gyro_bias_alpha") && e.contains("`gyro_bias_time_constant_s`"),
+        "{e}"
+    );
     let e = err_of(load_variant(
         "share",
         &(reference_toml() + "short_stop_weight = 0.0\n"),

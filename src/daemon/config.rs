@@ -105,6 +105,28 @@ pub enum ConfigError {
     },
 }
 
+/// Keys earlier versions read, and what to write instead.
+const RENAMED_KEYS: [(&str, &str, &str); 1] = [(
+    "estimator",
+    "gyro_bias_alpha",
+    "replaced by `gyro_bias_time_constant_s` in seconds, which holds at any IMU rate: \
+     an alpha of 0.01 at 100 Hz is 1 s (the IMU's sample interval over alpha)",
+)];
+
+/// A config that failed to parse because it still uses a key of an earlier version:
+/// the error names the key and what replaced it.
+fn renamed_key(path: &Path, text: &str) -> Option<ConfigError> {
+    let table: toml::Table = toml::from_str(text).ok()?;
+    RENAMED_KEYS.iter().find_map(|&(section, key, msg)| {
+        table.get(section)?.get(key)?;
+        Some(ConfigError::Field {
+            path: path.into(),
+            field: format!("{section}.{key}"),
+            msg: msg.into(),
+        })
+    })
+}
+
 /// The configuration shipped in `config/leveld.toml`, built in.
 pub const DEFAULT_TOML: &str = include_str!("../../config/leveld.toml");
 
@@ -119,9 +141,11 @@ impl Config {
     }
 
     pub fn parse(path: &Path, text: &str) -> Result<Self, ConfigError> {
-        let mut cfg: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.into(),
-            msg: e.to_string(),
+        let mut cfg: Config = toml::from_str(text).map_err(|e| {
+            renamed_key(path, text).unwrap_or_else(|| ConfigError::Parse {
+                path: path.into(),
+                msg: e.to_string(),
+            })
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let names_no_file = |p: &Path| {
