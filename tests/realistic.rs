@@ -2,7 +2,7 @@
 //! of the realistic family with fixed seeds. Tolerances come from the measured spread
 //! of single windows (about 0.2 deg rms on these drives) over the windows involved.
 
-use leveld::bench::realistic::RealisticSpec;
+use leveld::bench::realistic::{RealisticSpec, StopKind};
 use leveld::bench::stops::{StopChecks, check};
 use leveld::bench::suite::{Case, DriveSpec};
 use leveld::estimator::{Condition, Estimate, Estimator, EstimatorConfig, Event};
@@ -306,6 +306,60 @@ fn a_load_ramping_in_is_seen_at_its_stop_not_taken_for_a_drive_off() {
         seen * 10 >= stops * 9,
         "{seen} of {stops} load changes seen at their stop"
     );
+}
+
+#[test]
+fn door_shocks_and_imu_gaps_at_every_stop_end_no_standstill_before_drive_off() {
+    // A door shock of 0.2-0.4 deg (twice the family's) and a gap in the IMU data at
+    // every stop of at least 1.5 s. Where the gap hides the shock's first swing, the
+    // samples resume mid-swing; the motion tracker must neither integrate the missing
+    // swing into a speed nor re-anchor on the ringing that follows.
+    let r = RealisticSpec {
+        door_shock_share: 1.0,
+        door_shock_deg: [0.2, 0.4],
+        imu_gap_share: 1.0,
+        ..RealisticSpec::default()
+    };
+    let (mut stops, mut early) = (0, Vec::new());
+    for seed in 51..55 {
+        let s = spec(seed, 12, r.clone());
+        let case = &s.cases()[0];
+        let plan = case.plan.as_ref().unwrap();
+        let drive = simulate(&case.scenario);
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        let mut ev = Vec::new();
+        for input in drive.merged() {
+            match input {
+                Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
+                Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
+            }
+        }
+        let loads = ev.iter().filter(|e| matches!(e, Event::LoadChanged { .. }));
+        assert_eq!(
+            loads.count(),
+            0,
+            "seed {seed}: no load changes on this drive"
+        );
+        for &(t_stop, t_go, kind, _) in &plan.stops {
+            if !matches!(kind, StopKind::Full) || t_go - t_stop < 1.5 {
+                continue;
+            }
+            stops += 1;
+            // The standstill begins about 1 s after the car stops; it may end only as
+            // the car pulls away.
+            let ended = ev.iter().find_map(|e| match e {
+                Event::StandstillEnded { t_s, .. } if *t_s > t_stop && *t_s < t_go - 0.1 => {
+                    Some(*t_s)
+                }
+                _ => None,
+            });
+            if let Some(t) = ended {
+                early.push((seed, t_stop, t_go, t));
+            }
+        }
+    }
+    assert!(stops >= 30, "{stops} stops");
+    assert!(early.is_empty(), "standstills ended at rest: {early:?}");
 }
 
 /// Errors of the windows accepted on `case` (deg), of one condition or all.

@@ -258,13 +258,26 @@ impl Estimator {
         to: usize,
         acc_bias: &Vector3<f64>,
     ) -> Vector3<f64> {
+        self.derotated_spread(from, to, acc_bias).0
+    }
+
+    /// `derotated_mean`, and the largest standard deviation of the turned samples about
+    /// it over the three axes, m/s^2.
+    pub(super) fn derotated_spread(
+        &self,
+        from: usize,
+        to: usize,
+        acc_bias: &Vector3<f64>,
+    ) -> (Vector3<f64>, f64) {
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         // Rotation from the frame at sample j to the frame at `to`.
         let mut q = UnitQuaternion::identity();
-        let (mut sum, mut k) = (Vector3::zeros(), 0usize);
+        let (mut sum, mut sq, mut k) = (Vector3::zeros(), Vector3::zeros(), 0usize);
         let mut j = to;
         loop {
-            sum += q * (self.hist.get(j).acc() - acc_bias - self.lever_acc_at(j));
+            let f = q * (self.hist.get(j).acc() - acc_bias - self.lever_acc_at(j));
+            sum += f;
+            sq += f.component_mul(&f);
             k += 1;
             if j <= from {
                 break;
@@ -274,7 +287,9 @@ impl Estimator {
             q = attitude::propagate(&q, &w, a.t_s - b.t_s);
             j -= 1;
         }
-        sum / k as f64
+        let mean = sum / k as f64;
+        let var = sq / k as f64 - mean.component_mul(&mean);
+        (mean, var.max().max(0.0).sqrt())
     }
 
     /// Forward speed at history sample `to` (before `rest`) of a car at rest at `rest`

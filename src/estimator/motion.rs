@@ -40,8 +40,10 @@ const REST_AGAIN_SHARE: f64 = 0.3;
 pub(super) struct MotionTracker {
     /// Body attitude carried by the gyro since the last anchor.
     q: UnitQuaternion<f64>,
-    /// Speed along body x picked up since the last anchor, m/s.
+    /// Speed along body x picked up since the last anchor, m/s,
     v_mps: f64,
+    /// and one sample before.
+    v_prev_mps: f64,
     /// Time of the last sample integrated, s.
     t_last_s: f64,
     /// Time of the last anchor, s.
@@ -59,6 +61,7 @@ impl MotionTracker {
         Some(Self {
             q: attitude_from_gravity(f_rest)?,
             v_mps: 0.0,
+            v_prev_mps: 0.0,
             t_last_s: t_s,
             // The reference a standstill begins with is taken while the body may still
             // rock: the first settled window that agrees may anchor at once.
@@ -70,8 +73,11 @@ impl MotionTracker {
         })
     }
 
+    /// Speed picked up, m/s: the lower of the last two samples', so that a door shock's
+    /// sharp first swing, whose speed about the pitch centre the gyro's mean over a
+    /// period splits over two samples, does not pass for a drive-off for one sample.
     pub(super) fn speed_mps(&self) -> f64 {
-        self.v_mps.abs()
+        self.v_mps.abs().min(self.v_prev_mps.abs())
     }
 
     /// Speed picked up over the last `GAIN_SPAN_S`, m/s.
@@ -90,6 +96,7 @@ impl MotionTracker {
 
     fn reset_speed(&mut self) {
         self.v_mps = 0.0;
+        self.v_prev_mps = 0.0;
         self.gain_v = [0.0; GAIN_STEPS];
     }
 }
@@ -137,16 +144,38 @@ impl Estimator {
         }
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, m.gravity_mps2);
+        let lever = self.lever_arm();
         while i <= newest {
             let (a, b) = (self.hist.get(i - 1), self.hist.get(i));
             let dt = b.t_s - a.t_s;
             if dt > 0.0 && dt <= self.cfg.max_imu_gap_s {
-                let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
-                m.q = attitude::propagate(&m.q, &w, dt);
-                let f = b.acc() - self.lever_acc_at(i);
-                m.v_mps += (f.x - (m.q.inverse() * up).x) * dt;
+                let (wa, wb) = (a.gyro_rps() - bias, b.gyro_rps() - bias);
+                m.q = attitude::propagate(&m.q, &((wa + wb) * 0.5), dt);
+                // The speed of the pitch centre: the IMU's own speed change over the
+                // sample, less the change of its speed about the centre (omega x r)
+                // and the centripetal part of its acceleration. A sample holds the mean
+                // over its period, so the rate at the period's ends is the mean of the
+                // readings on either side: the change over the period is half the
+                // difference of the readings after and before it. From the readings
+                // themselves, a door shock's 5-8 Hz swing is removed whole.
+                //
+                // After a dropped sample the reading holds its own period only; the one
+                // lost is taken as one in which a body at rest kept its speed (a door
+                // shock's first swing counted twice would pass for a drive-off).
+                let wc = self.hist.get(i + 1).gyro_rps() - bias;
+                let f = b.acc() - wb.cross(&wb.cross(&lever));
+                let swing = ((wc - wa) * 0.5).cross(&lever).x;
+                let period = if dt > 1.5 * self.sample_dt_s.0 {
+                    self.sample_dt_s.0
+                } else {
+                    dt
+                };
+                m.v_prev_mps = m.v_mps;
+                m.v_mps += (f.x - (m.q.inverse() * up).x) * period - swing;
                 m.record(b.t_s);
             }
+            // Across a gap the body's turn and speed are unknown: a body at rest kept
+            // its speed, and the tilt left unexplained is for the next anchor to take.
             m.t_last_s = b.t_s;
             i += 1;
         }
@@ -155,7 +184,8 @@ impl Estimator {
         // absorbed a sample at a time.
         if self.bias_window_ok
             && m.t_last_s - m.t_anchor_s >= ANCHOR_PERIOD_S
-            && let Some(q_now) = attitude_from_gravity(&self.anchor_mean(newest))
+            && let Some(f_now) = self.anchor_mean(newest)
+            && let Some(q_now) = attitude_from_gravity(&f_now)
             && (pitch_of(&q_now) - pitch_of(&m.q)).abs() <= ANCHOR_TOL_RAD
         {
             m.q = q_now;
@@ -166,18 +196,22 @@ impl Estimator {
     }
 
     /// The gravity a re-anchored tracker stands on: the mean specific force over the
-    /// trailing `still_window_s` up to history sample `to`, turned by the gyro into the
-    /// body frame at `to` (see `derotated_mean`), so that it is the gravity the body
-    /// sees there even while it still rocks a little (the raw mean lags a body turning
-    /// by its rate times half the window). With `derotated_motion_anchor` off, the raw
-    /// mean of the last stillness window.
-    fn anchor_mean(&self, to: usize) -> Vector3<f64> {
+    /// trailing `still_window_s` up to history sample `to`, freed of the lever arm's
+    /// rocking and turned by the gyro into the body frame at `to`, so that it is the
+    /// gravity the body sees there even while it still rocks a little (the raw mean
+    /// lags a body turning by its rate times half the window). `None` when the samples
+    /// so corrected still spread wider than `still_acc_std_mps2`: the window holds
+    /// motion the rocking model does not explain, such as the 5-8 Hz ringing of a door
+    /// shock, whose mean over a window is no gravity to stand on. With
+    /// `derotated_motion_anchor` off, the raw mean of the last stillness window.
+    fn anchor_mean(&self, to: usize) -> Option<Vector3<f64>> {
         if !self.cfg.derotated_motion_anchor {
-            return self.still_mean_acc;
+            return Some(self.still_mean_acc);
         }
         let t_to = self.hist.get(to).t_s;
         let from = self.index_at(t_to - self.cfg.still_window_s);
-        self.derotated_mean(from, to, &Vector3::zeros())
+        let (mean, sd) = self.derotated_spread(from, to, &Vector3::zeros());
+        (sd <= self.cfg.still_acc_std_mps2).then_some(mean)
     }
 
     /// Time from which a tracker started now integrates: the newest sample it can use.
@@ -257,6 +291,64 @@ mod tests {
             _ => None,
         });
         assert!(delta.is_some_and(|d| (d - 1.0).abs() < 0.1), "{delta:?}");
+    }
+
+    /// A car at rest with its wheels at zero whose body rings from a door slammed at
+    /// 14 s (`amp_deg` at `freq_hz`, decaying with `decay_s`), seen by an IMU at the
+    /// configured lever arm, with no IMU samples from `gap_s.0` to `gap_s.1`.
+    fn shock_events(amp_deg: f64, freq_hz: f64, decay_s: f64, gap_s: (f64, f64)) -> Vec<Event> {
+        let cfg = EstimatorConfig::default();
+        let arm = Vector3::from(cfg.lever_arm_m);
+        let mut est = Estimator::new(cfg).unwrap();
+        let mut ev = Vec::new();
+        let (amp, w) = (amp_deg.to_radians(), std::f64::consts::TAU * freq_hz);
+        for k in 0..2500 {
+            let t = k as f64 * 0.01;
+            let x = t - 14.0;
+            let (th, rate, acc) = if x < 0.0 {
+                (0.0, 0.0, 0.0)
+            } else {
+                let (e, s, c) = ((-x / decay_s).exp(), (w * x).sin(), (w * x).cos());
+                let k2 = 1.0 / (decay_s * decay_s) - w * w;
+                (
+                    amp * e * s,
+                    amp * e * (w * c - s / decay_s),
+                    amp * e * (k2 * s - 2.0 * w / decay_s * c),
+                )
+            };
+            if k % 2 == 0 {
+                let w = WheelSpeeds {
+                    t_s: t,
+                    kmh: [0.0; 4],
+                };
+                est.push_wheels(w, &mut |e| ev.push(e));
+            }
+            if t > gap_s.0 && t < gap_s.1 {
+                continue;
+            }
+            // Nose-up pitch turns the body about -y.
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -th);
+            let omega = Vector3::new(0.0, -rate, 0.0);
+            let alpha = Vector3::new(0.0, -acc, 0.0);
+            let f = q.inverse() * Vector3::new(0.0, 0.0, G)
+                + alpha.cross(&arm)
+                + omega.cross(&omega.cross(&arm));
+            let s = ImuSample::new(t, f.into(), [0.0, -rate.to_degrees(), 0.0]);
+            est.push_imu(s, &mut |e| ev.push(e));
+        }
+        ev
+    }
+
+    #[test]
+    fn a_door_shock_across_a_gap_in_the_imu_data_is_not_a_drive_off() {
+        // The samples resume mid-swing: the stillness window that follows holds the
+        // ringing, whose mean is no gravity to re-anchor the tracker on.
+        for (amp_deg, freq_hz) in [(0.25, 5.25), (0.4, 8.0), (0.2, 6.5)] {
+            let ev = shock_events(amp_deg, freq_hz, 0.1, (13.91, 14.05));
+            assert_eq!(ended(&ev), None, "{amp_deg} deg at {freq_hz} Hz: {ev:#?}");
+            let load = ev.iter().find(|e| matches!(e, Event::LoadChanged { .. }));
+            assert!(load.is_none(), "{amp_deg} deg at {freq_hz} Hz: {load:?}");
+        }
     }
 
     #[test]
