@@ -362,6 +362,40 @@ fn door_shocks_and_imu_gaps_at_every_stop_end_no_standstill_before_drive_off() {
     assert!(early.is_empty(), "standstills ended at rest: {early:?}");
 }
 
+#[test]
+fn a_load_ramping_in_across_an_imu_gap_is_applied_at_its_stop() {
+    // Seed 107 of shipped urban, 5P: the load stop lasts 5.8 s, its ramp ends as the car
+    // pulls away, and 0.13 s of IMU data is missing in the middle of the ramp. No
+    // settled block follows the gap, so the live pitch must carry the body's turn
+    // across it; the turn a ramp makes there is a few hundredths of a degree.
+    let mut s = DriveSpec::parse(&shipped("urban")).unwrap();
+    s.seed = 107;
+    let (drive, t_stop, t_go, step) = load_stop(&s);
+    let gaps = &s.cases()[1].scenario.imu_gaps;
+    assert!(
+        gaps.iter().any(|g| g.0 > t_stop && g.0 < t_go),
+        "the load stop has a gap: {gaps:?}"
+    );
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    let mut ev = Vec::new();
+    for input in drive.merged() {
+        match input {
+            Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
+            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
+        }
+    }
+    let delta = ev.iter().find_map(|e| match e {
+        Event::LoadChanged { t_s, delta_deg, .. } if *t_s > t_stop && *t_s < t_go + 0.5 => {
+            Some(*delta_deg)
+        }
+        _ => None,
+    });
+    assert!(
+        delta.is_some_and(|d| (d - step).abs() <= 0.1),
+        "load change {delta:?} against a step of {step:.3}"
+    );
+}
+
 /// Errors of the windows accepted on `case` (deg), of one condition or all.
 fn window_errors(case: &Case, cfg: EstimatorConfig, only: Option<Condition>) -> Vec<f64> {
     let drive = simulate(&case.scenario);

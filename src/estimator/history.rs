@@ -2,12 +2,17 @@
 //! carried by the gyro, and the motion of the IMU on the rocking body.
 
 use super::attitude;
-use super::{Estimator, MAX_RATE_HZ};
+use super::{Estimator, ImuSample, MAX_RATE_HZ};
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// Half-width of the gyro smoothing behind the lever-arm acceleration, s:
 /// `lever_acc_at(i)` needs twice as many samples after `i` (`lever_half`).
 const LEVER_SMOOTH_HALF_S: f64 = 0.05;
+
+/// Across a gap in the IMU data, a turn of the body the readings on either side could
+/// make larger than this is unknown (see `turn_unknown_across`), rad.
+const GAP_TURN_MAX_RAD: f64 = 0.2 * std::f64::consts::PI / 180.0;
+
 /// The walk back to the rest edge steps over a knock at rest (a door shut, someone
 /// sitting down): a disturbance of the longitudinal force no longer than this, s,
 const KNOCK_MAX_S: f64 = 0.6;
@@ -473,6 +478,25 @@ impl Estimator {
         sum / count as f64
     }
 
+    /// Whether the body's turn between consecutive samples `a` and `b` is unknown: a
+    /// gap in the data over which the readings on either side, held for the whole
+    /// gap, would turn the body by more than `GAP_TURN_MAX_RAD`. A load ramping in
+    /// turns it by a few hundredths of a degree over such a gap, and the mean of the
+    /// two readings bridges it. A door shock's swing at its fastest would turn it by
+    /// most of a degree, where a body at rest turned by no more than the swing's
+    /// amplitude: such a gap turns nothing.
+    pub(super) fn turn_unknown_across(&self, a: &ImuSample, b: &ImuSample) -> bool {
+        let dt = b.t_s - a.t_s;
+        if dt <= self.cfg.max_imu_gap_s {
+            return false;
+        }
+        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let rate = (a.gyro_rps() - bias)
+            .norm()
+            .max((b.gyro_rps() - bias).norm());
+        rate * dt > GAP_TURN_MAX_RAD
+    }
+
     /// Carry an attitude along the history from sample `from` to sample `to` with the
     /// bias-corrected gyro (eq. 10-11), in either direction.
     pub(super) fn carry(
@@ -484,6 +508,9 @@ impl Estimator {
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let step = |q: UnitQuaternion<f64>, i: usize, sign: f64| {
             let (a, b) = (self.hist.get(i), self.hist.get(i + 1));
+            if self.turn_unknown_across(&a, &b) {
+                return q;
+            }
             let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
             attitude::propagate(&q, &w, sign * (b.t_s - a.t_s))
         };

@@ -294,6 +294,13 @@ impl Estimator {
             if s.t_s - t > self.cfg.max_imu_gap_s {
                 // A hole in the data: nothing before it can be trusted as still.
                 self.quiet_since = None;
+                let n = self.hist.len();
+                if n > 0
+                    && self.turn_unknown_across(&self.hist.get(n - 1), &s)
+                    && let Some(st) = self.standstill.as_mut()
+                {
+                    st.gap_end_s = s.t_s;
+                }
             }
         }
         if let Some(t) = self.last_t_s {

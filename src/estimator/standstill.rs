@@ -137,6 +137,9 @@ pub(super) struct Standstill {
     pub(super) block_gyro_sum: Vector3<f64>,
     /// The body's attitude now, carried by the gyro from the segment's reference.
     pub(super) live: LivePitch,
+    /// Time of the first sample after the latest gap in the IMU data over which the
+    /// body's turn is unknown, s.
+    pub(super) gap_end_s: f64,
 }
 
 /// The body's pitch while stopped, followed by the gyro from the settled reference with
@@ -338,6 +341,7 @@ impl Estimator {
             settled_done: false,
             block_gyro_sum: Vector3::zeros(),
             live: LivePitch::default(),
+            gap_end_s: f64::NEG_INFINITY,
         });
         let pitch = pitch_from(&f_rest).unwrap_or(0.0);
         emit(Event::StandstillStarted {
@@ -724,6 +728,15 @@ impl Estimator {
         let n = self.hist.len();
         if !self.cfg.live_standstill_pitch || st.seg_n < self.min_settled() || n < 2 {
             self.live_offset_rad = 0.0;
+            return;
+        }
+        if st.gap_end_s > st.seg_last_s {
+            // The gyro's turn across the gap is unknown (a door shock may have swung
+            // the body through it): the live pitch waits for a settled block after
+            // the gap to carry it from.
+            st.live = LivePitch::default();
+            self.live_offset_rad = 0.0;
+            self.standstill = Some(st);
             return;
         }
         let q = match st.live.q {
