@@ -37,6 +37,9 @@ sens() {
     sens "stop-and-go, gentle braking (0.4-0.8 m/s^2)" stop-and-go "brake_mps2=[0.4, 0.8]"
     sens "urban, wheels zero below 3 km/h" urban sensors.wheel_zero_below_kmh=3.0
     sens "stop-and-go, wheels zero below 3 km/h" stop-and-go sensors.wheel_zero_below_kmh=3.0
+    sens "urban, 0.2-0.4 deg door shock and an IMU gap at every stop" urban \
+        realistic.door_shock_share=1.0 "realistic.door_shock_deg=[0.2, 0.4]" \
+        realistic.imu_gap_share=1.0
 } > "$tmp/sens"
 run bench accuracy --ablation --scenarios scenarios/realistic/*.toml --seeds 4 > "$tmp/ablreal"
 
