@@ -40,6 +40,19 @@ fn with_dead_zone(mut s: DriveSpec, kmh: f64) -> DriveSpec {
     s
 }
 
+/// Every event leveld, as configured by default, emits over `drive`.
+fn drive_events(drive: &leveld::sim::Drive) -> Vec<Event> {
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    let mut ev = Vec::new();
+    for input in drive.merged() {
+        match input {
+            Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
+            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
+        }
+    }
+    ev
+}
+
 fn valid(e: &Estimate) -> bool {
     e.std_err_deg <= 0.06 && e.weight >= 4.0
 }
@@ -177,14 +190,7 @@ fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
     let (k, _) = plan.load_change.unwrap();
     let (t_stop, t_go, ..) = plan.stops[k];
     let drive = simulate(&case.scenario);
-    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-    let mut ev = Vec::new();
-    for input in drive.merged() {
-        match input {
-            Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
-            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-        }
-    }
+    let ev = drive_events(&drive);
     // The standstill of the load stop lasts until the car pulls away.
     let ended = ev.iter().find_map(|e| match e {
         Event::StandstillEnded { t_s, .. } if *t_s > t_stop && *t_s < t_go + 2.0 => Some(*t_s),
@@ -280,14 +286,7 @@ fn a_load_ramping_in_is_seen_at_its_stop_not_taken_for_a_drive_off() {
         if step.abs() < 0.5 {
             continue; // the ramp fell after the drive-off
         }
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-        let mut ev = Vec::new();
-        for input in drive.merged() {
-            match input {
-                Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
-                Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-            }
-        }
+        let ev = drive_events(&drive);
         let during = |t: f64| t > t_stop && t < t_go;
         let ended_early = ev
             .iter()
@@ -326,14 +325,7 @@ fn door_shocks_and_imu_gaps_at_every_stop_end_no_standstill_before_drive_off() {
         let case = &s.cases()[0];
         let plan = case.plan.as_ref().unwrap();
         let drive = simulate(&case.scenario);
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-        let mut ev = Vec::new();
-        for input in drive.merged() {
-            match input {
-                Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
-                Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-            }
-        }
+        let ev = drive_events(&drive);
         let loads = ev.iter().filter(|e| matches!(e, Event::LoadChanged { .. }));
         assert_eq!(
             loads.count(),
@@ -376,14 +368,7 @@ fn a_load_ramping_in_across_an_imu_gap_is_applied_at_its_stop() {
         gaps.iter().any(|g| g.0 > t_stop && g.0 < t_go),
         "the load stop has a gap: {gaps:?}"
     );
-    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-    let mut ev = Vec::new();
-    for input in drive.merged() {
-        match input {
-            Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
-            Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-        }
-    }
+    let ev = drive_events(&drive);
     let delta = ev.iter().find_map(|e| match e {
         Event::LoadChanged { t_s, delta_deg, .. } if *t_s > t_stop && *t_s < t_go + 0.5 => {
             Some(*delta_deg)
@@ -818,14 +803,7 @@ fn load_step_errors(hold_s: [f64; 2], delay_s: [f64; 2], seeds: std::ops::Range<
         let mut s = spec(seed, 6, r.clone());
         s.load_change_at_stop = Some(3);
         let (drive, t_stop, t_go, step) = load_stop(&s);
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-        let mut ev = Vec::new();
-        for input in drive.merged() {
-            match input {
-                Input::Imu(x) => est.push_imu(x, &mut |e| ev.push(e)),
-                Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
-            }
-        }
+        let ev = drive_events(&drive);
         let measured: f64 = ev
             .iter()
             .filter_map(|e| match e {
