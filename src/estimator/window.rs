@@ -607,6 +607,93 @@ mod tests {
         ));
     }
 
+    /// A drive-off at 0.5 m/s^2 on a plane rising `grade` along the starting heading and
+    /// `crossfall` to its left, steering into a turn of curvature `kappa` (1/m, ramped
+    /// in over 1 m) from 0.3 m on, walked as a 3 m window with no turn limit. Exact
+    /// samples at 100 Hz. Returns the slope error against the grade along the starting
+    /// heading and the heading change over the window, deg.
+    fn turning_walk(grade: f64, crossfall: f64, kappa: f64) -> (f64, f64) {
+        let (a, h, every) = (0.5, 0.0005, 20);
+        let heading_at = |s: f64| {
+            // Heading after `s` m: the curvature ramps in over 1 m from 0.3 m.
+            let ramp = (s - 0.3).clamp(0.0, 1.0);
+            kappa * (0.5 * ramp * ramp + (s - 1.3).max(0.0))
+        };
+        let (mut x, mut y, mut s_prev) = (0.0f64, 0.0f64, 0.0f64);
+        let mut states = Vec::new();
+        for k in 0..12_000 {
+            let t = k as f64 * h;
+            let s = 0.5 * a * t * t;
+            let psi = heading_at(s);
+            x += (s - s_prev) * psi.cos();
+            y += (s - s_prev) * psi.sin();
+            s_prev = s;
+            let along = grade * psi.cos() + crossfall * psi.sin();
+            let left = -grade * psi.sin() + crossfall * psi.cos();
+            let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
+                * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -along.atan())
+                * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), left.atan());
+            states.push((Vector3::new(x, y, grade * x + crossfall * y), q, psi));
+        }
+        let up = Vector3::new(0.0, 0.0, G);
+        let q0 = attitude_from_gravity(&(states[0].1.inverse() * up)).unwrap();
+        let mut w = WindowIntegrator::with_capacity(2000);
+        w.start(
+            WindowSetup {
+                distance_m: 3.0,
+                max_yaw_rate_rps: 1e3,
+                max_lateral_acc_mps2: 1e3,
+                max_chord_deviation_m: 1.0,
+                ..setup(q0)
+            },
+            Vector3::zeros(),
+        );
+        w.push(&ImuSample::new(
+            0.0,
+            (states[0].1.inverse() * up).into(),
+            [0.0; 3],
+        ));
+        for k in (every..states.len() - 1).step_by(every) {
+            let (p, q, _) = states[k];
+            let acc = (states[k + 1].0 - p * 2.0 + states[k - 1].0) / (h * h);
+            let rate = (states[k - 1].1.inverse() * states[k + 1].1).scaled_axis() / (2.0 * h);
+            let s = ImuSample::new(
+                k as f64 * h,
+                (q.inverse() * (acc + up)).into(),
+                rate.map(f64::to_degrees).into(),
+            );
+            if let Step::Done(r) = w.push(&s) {
+                let g = r.expect("window must be accepted");
+                let end = (g.duration_s / h).round() as usize;
+                return (
+                    (g.slope_rad - grade.atan()).to_degrees(),
+                    states[end].2.to_degrees(),
+                );
+            }
+        }
+        panic!("the window must complete");
+    }
+
+    #[test]
+    fn a_turn_is_walked_exactly_but_on_a_crossfall_it_reads_the_slope_of_another_heading() {
+        // Turning on a plane that falls along the drive only, or driving straight across
+        // a crossfall: the walk is exact.
+        let (err, turned) = turning_walk(0.03, 0.0, 1.0 / 15.0);
+        assert!(turned > 5.0, "{turned}");
+        assert!(err.abs() < 0.002, "{err}");
+        let (err, _) = turning_walk(0.03, 0.025, 0.0);
+        assert!(err.abs() < 0.002, "{err}");
+        // A turn at a junction with 2.5 % crossfall: the walk measures part of the
+        // crossfall as slope, which is why turning windows are rejected.
+        let (err, turned) = turning_walk(0.03, 0.025, 1.0 / 15.0);
+        assert!(
+            turned > 5.0 && err > 0.1,
+            "{turned} deg turn, {err} deg error"
+        );
+        let (mirrored, _) = turning_walk(0.03, -0.025, 1.0 / 15.0);
+        assert!((mirrored + err).abs() < 0.002, "{mirrored} against {err}");
+    }
+
     #[test]
     fn gap_breaks_window() {
         let mut w = WindowIntegrator::with_capacity(100);
