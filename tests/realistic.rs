@@ -53,6 +53,16 @@ fn drive_events(drive: &leveld::sim::Drive) -> Vec<Event> {
     ev
 }
 
+/// The first load change leveld applied after `from_s` and before `to_s`, deg.
+fn load_change_between(ev: &[Event], from_s: f64, to_s: f64) -> Option<f64> {
+    ev.iter().find_map(|e| match e {
+        Event::LoadChanged { t_s, delta_deg, .. } if *t_s > from_s && *t_s < to_s => {
+            Some(*delta_deg)
+        }
+        _ => None,
+    })
+}
+
 fn valid(e: &Estimate) -> bool {
     e.std_err_deg <= 0.06 && e.weight >= 4.0
 }
@@ -202,12 +212,7 @@ fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
     );
     // And the step is measured there.
     let step = drive.truth_at(t_go + 1.0).load_pitch_deg - drive.truth_at(t_stop).load_pitch_deg;
-    let delta = ev.iter().find_map(|e| match e {
-        Event::LoadChanged { t_s, delta_deg, .. } if *t_s > t_stop && *t_s < t_go + 2.0 => {
-            Some(*delta_deg)
-        }
-        _ => None,
-    });
+    let delta = load_change_between(&ev, t_stop, t_go + 2.0);
     assert!(
         delta.is_some_and(|d| (d - step).abs() <= 0.1),
         "load change {delta:?} against a step of {step:.3}"
@@ -291,10 +296,7 @@ fn a_load_ramping_in_is_seen_at_its_stop_not_taken_for_a_drive_off() {
         let ended_early = ev
             .iter()
             .any(|e| matches!(e, Event::StandstillEnded { t_s, .. } if during(*t_s)));
-        let measured = ev.iter().find_map(|e| match e {
-            Event::LoadChanged { t_s, delta_deg, .. } if during(*t_s) => Some(*delta_deg),
-            _ => None,
-        });
+        let measured = load_change_between(&ev, t_stop, t_go);
         stops += 1;
         let ok = !ended_early && measured.is_some_and(|d| (d - step).abs() <= 0.15);
         seen += usize::from(ok);
@@ -369,12 +371,7 @@ fn a_load_ramping_in_across_an_imu_gap_is_applied_at_its_stop() {
         "the load stop has a gap: {gaps:?}"
     );
     let ev = drive_events(&drive);
-    let delta = ev.iter().find_map(|e| match e {
-        Event::LoadChanged { t_s, delta_deg, .. } if *t_s > t_stop && *t_s < t_go + 0.5 => {
-            Some(*delta_deg)
-        }
-        _ => None,
-    });
+    let delta = load_change_between(&ev, t_stop, t_go + 0.5);
     assert!(
         delta.is_some_and(|d| (d - step).abs() <= 0.1),
         "load change {delta:?} against a step of {step:.3}"
