@@ -248,8 +248,13 @@ fn rolling_stops_hidden_by_a_wide_wheel_dead_zone_give_no_window() {
 
 #[test]
 fn a_load_ramping_in_while_the_stop_settles_is_applied_before_drive_off() {
+    // On a smooth road: the check compares the estimate across the stop, and that
+    // stop's deceleration window moves it too. On the urban roads' unevenness (0.08 deg
+    // rms of body pitch at each stop) the steps were still 1.02, 1.00 and 0.99 deg, but
+    // seed 32's window moved an estimate of few windows by 0.16 deg.
     let r = RealisticSpec {
         load_stop_short_share: 0.0,
+        road_roughness_1e6_m3: 0.0,
         ..gentle()
     };
     let mut applied = 0;
@@ -402,9 +407,12 @@ fn window_errors(case: &Case, cfg: EstimatorConfig, only: Option<Condition>) -> 
 /// Mean error of the deceleration windows of a drive whose IMU sits 0.2 m further out
 /// and 0.15 m higher than configured.
 fn decel_bias(learn: bool, velocity_free: bool) -> f64 {
+    // The road's unevenness pitches the body by about 0.08 deg rms at each stop, which
+    // two drives' windows do not average out; the arm's bias is measured without it.
     let r = RealisticSpec {
         lever_arm_m: [2.2, 0.0, 0.45],
         imu_mount_max_deg: [0.0; 3],
+        road_roughness_1e6_m3: 0.0,
         ..gentle()
     };
     let mut errs = Vec::new();
@@ -724,8 +732,16 @@ fn a_speed_bump_past_the_stop_line_leaves_the_straight_half_of_the_window() {
     };
     let (mut drive_offs, mut kept, mut errs) = (0, 0, Vec::new());
     let (mut half, mut whole) = (0, 0);
+    // On a smooth road. On the urban roads' unevenness the body's heave of a few mm
+    // fails the half window's straightness check (3 mm, a quarter of the whole
+    // window's, as a bend of one curvature gives): 11 of 18 kept. Allowing 3-5 mm more
+    // for heave keeps more windows but left the family worse (docs/accuracy.md).
+    let r = RealisticSpec {
+        road_roughness_1e6_m3: 0.0,
+        ..gentle()
+    };
     for seed in [21, 22] {
-        let mut s = spec(seed, 10, gentle());
+        let mut s = spec(seed, 10, r.clone());
         s.bump_share = 1.0;
         let c = checks(&s, 0);
         drive_offs += c.gentle_drive_offs;
@@ -1114,14 +1130,16 @@ fn the_standard_error_behind_valid_is_not_overconfident() {
     // error / standard error is 1.03 there; on pairs of seeds, 0.85-1.28. Before the
     // average counted residuals up to its Huber clip it was 0.67 (cautious), and a
     // standard error that claims half the true error would give 2. These are seeds
-    // the benchmark does not run (the 9th and 10th of each scenario): measured 0.90
-    // over 28 stops.
+    // the benchmark does not run (the 9th to 12th of each scenario). On smooth roads
+    // the 9th and 10th gave 28 such stops (0.90); the road's unevenness pitches the
+    // body at each stop and VALID comes later, so four seeds each: measured 1.24 over
+    // 30 stops.
     let cases: Vec<Case> = ["urban", "hilly", "stop-and-go", "bumpy"]
         .iter()
         .flat_map(|name| {
             let mut s = DriveSpec::parse(&shipped(name)).unwrap();
             let base = s.seed;
-            (8..10).flat_map(move |k| {
+            (8..12).flat_map(move |k| {
                 s.seed = base + k;
                 s.cases()
             })

@@ -14,6 +14,11 @@ use serde::Serialize;
 /// Standard gravity used by the simulator, m/s^2.
 pub const G_MPS2: f64 = 9.80665;
 
+/// Road unevenness reaches the body through the tyre and the unsprung mass of each
+/// wheel, taken as a first-order low-pass of this corner frequency, Hz (wheel hop is at
+/// 10-15 Hz; above it a wheel no longer pushes the body).
+const WHEEL_PASS_HZ: f64 = 6.0;
+
 /// Ground truth at one IMU sample time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Truth {
@@ -25,7 +30,8 @@ pub struct Truth {
     pub grade_deg: f64,
     /// Static road-to-body pitch of the load, deg (what leveld estimates).
     pub load_pitch_deg: f64,
-    /// Dynamic body pitch from the suspension, deg.
+    /// Body pitch from the suspension, deg: its answer to the car's acceleration and to
+    /// the road's unevenness (at rest, the unevenness under the axles).
     pub suspension_deg: f64,
 }
 
@@ -147,6 +153,15 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let (mut v, mut s) = (0.0f64, 0.0f64);
     // Suspension state (rad, rad/s).
     let (mut beta, mut beta_dot) = (0.0f64, 0.0f64);
+    // Road unevenness under the axles and the body's answer to it through its heave
+    // (m, m/s) and pitch (rad, rad/s) modes, on top of the smooth road it follows
+    // exactly; `rough_in` holds the last (heave, pitch) inputs for their rates.
+    let mut profile = super::roughness::Profile::new(&sc.road.roughness);
+    let wh = std::f64::consts::TAU * veh.heave_freq_hz;
+    let (mut heave, mut heave_dot, mut rho, mut rho_dot) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let mut rough_in: Option<(f64, f64)> = None;
+    let mut wheel_z: Option<(f64, f64)> = None;
+    let wheel_gain = 1.0 - (-std::f64::consts::TAU * WHEEL_PASS_HZ * h).exp();
 
     let acc_sigma = sen.acc_noise_ug_rthz * 1e-6 * G_MPS2 * sen.imu_rate_hz.sqrt();
     let gyro_sigma = sen.gyro_noise_dps_rthz * sen.imu_rate_hz.sqrt();
@@ -202,7 +217,29 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let (kappa, psi) = sc.road.heading(s);
         let load = sc.load_pitch_deg_at(t).to_radians();
         let shock: f64 = sc.shocks.iter().map(|x| x.pitch_rad(t)).sum();
-        let pitch = gam + load + beta + shock;
+        // The suspension answers the unevenness under both axles: spring and damper
+        // between the body and the road input, for heave and for pitch.
+        // Each wheel passes it through its tyre and unsprung mass (`WHEEL_PASS_HZ`).
+        let z_road = (profile.height_m(sf), profile.height_m(sr));
+        let (zf, zr) = match wheel_z {
+            Some((f, r)) => (
+                f + wheel_gain * (z_road.0 - f),
+                r + wheel_gain * (z_road.1 - r),
+            ),
+            None => z_road,
+        };
+        wheel_z = Some((zf, zr));
+        let u = (0.5 * (zf + zr), (zf - zr) / veh.wheelbase_m);
+        let (u_h, u_p) = u;
+        let (du_h, du_p) = rough_in.map_or((0.0, 0.0), |p| ((u_h - p.0) / h, (u_p - p.1) / h));
+        if rough_in.is_none() {
+            // The car starts at rest on the road as it is.
+            (heave, rho) = u;
+        }
+        rough_in = Some(u);
+        let heave_dd = wh * wh * (u_h - heave) + 2.0 * veh.heave_damping * wh * (du_h - heave_dot);
+        let rho_dd = wn * wn * (u_p - rho) + 2.0 * veh.pitch_damping * wn * (du_p - rho_dot);
+        let pitch = gam + load + beta + shock + rho;
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
             * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch);
         // Acceleration of the midpoint in the vertical plane of the road: tangential plus
@@ -216,7 +253,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
         }
         let (sp, cp) = psi.sin_cos();
         let left = Vector3::new(-sp, cp, 0.0);
-        let acc = Vector3::new(along * cp, along * sp, vert) + left * (v * v * kappa);
+        let acc = Vector3::new(along * cp, along * sp, vert + heave_dd) + left * (v * v * kappa);
         let kin = Kin {
             q,
             acc,
@@ -227,7 +264,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
                 v_mps: v,
                 grade_deg: sc.road.grade(s).0.to_degrees(),
                 load_pitch_deg: load.to_degrees() + veh.imu_mount_deg[1],
-                suspension_deg: beta.to_degrees(),
+                suspension_deg: (beta + rho).to_degrees(),
             },
             kappa,
         };
@@ -353,6 +390,10 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
         beta_dot += beta_dd * h;
         beta += beta_dot * h;
+        heave_dot += heave_dd * h;
+        heave += heave_dot * h;
+        rho_dot += rho_dd * h;
+        rho += rho_dot * h;
     }
     Drive { imu, wheels, truth }
 }

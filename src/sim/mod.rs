@@ -5,6 +5,7 @@ pub mod drive;
 pub mod noise;
 pub mod paper;
 pub mod presets;
+pub mod roughness;
 pub mod scenario;
 
 pub use drive::{Drive, Input, Truth, simulate};

@@ -49,6 +49,7 @@ pub fn road_around_stops(stops: &[f64], grades_pct: &[f64]) -> Road {
         grade_deg: knots,
         curves: Vec::new(),
         curve_ramp_m: 0.0,
+        roughness: Default::default(),
     }
 }
 

@@ -54,6 +54,9 @@ pub struct Road {
     /// as a driver turns the wheel in; 0 is a step, m.
     #[serde(default)]
     pub curve_ramp_m: f64,
+    /// Unevenness on top of the grade, felt through the suspension (none by default).
+    #[serde(default)]
+    pub roughness: super::roughness::Roughness,
 }
 
 impl Road {
@@ -62,6 +65,7 @@ impl Road {
             grade_deg: vec![(0.0, grade_deg)],
             curves: Vec::new(),
             curve_ramp_m: 0.0,
+            roughness: Default::default(),
         }
     }
 
@@ -185,6 +189,10 @@ pub struct Vehicle {
     pub pitch_freq_hz: f64,
     /// Damping ratio of the body pitch mode.
     pub pitch_damping: f64,
+    /// Natural frequency (Hz) and damping ratio of the body's heave mode, through which
+    /// it follows road unevenness (the pitch mode above does so for pitch).
+    pub heave_freq_hz: f64,
+    pub heave_damping: f64,
     /// Track width for wheel-speed differences in turns, m.
     pub track_m: f64,
     /// Distance between the axles, m; the body pitch follows the road chord between them.
@@ -209,6 +217,8 @@ impl Default for Vehicle {
             pitch_per_accel_deg: 0.3,
             pitch_freq_hz: 1.5,
             pitch_damping: 0.4,
+            heave_freq_hz: 1.2,
+            heave_damping: 0.3,
             track_m: 1.6,
             wheelbase_m: 2.7,
             rough_road_mps2: 0.0,
