@@ -23,6 +23,7 @@ sens() {
 }
 {
     sens "urban, as shipped" urban
+    sens "urban, smooth road (no unevenness)" urban realistic.road_roughness_1e6_m3=0.0
     sens "urban, IMU at 50 Hz" urban sensors.imu_rate_hz=50
     sens "urban, IMU at 200 Hz" urban sensors.imu_rate_hz=200
     sens "urban, accelerometer 500 ug/rtHz" urban sensors.acc_noise_ug_rthz=500

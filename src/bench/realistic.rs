@@ -445,6 +445,7 @@ mod tests {
         };
         let r = spec.realistic.clone().unwrap_or_default();
         let rough = std_by_band(&mut spec, &r);
+        eprintln!("vertical std by band, m/s^2: {rough:.3?} (a real car: {real:?})");
         for (b, (sim, real)) in rough.iter().zip(real).enumerate() {
             let ratio = sim / real;
             assert!(
@@ -457,6 +458,7 @@ mod tests {
             ..r
         };
         let smooth = std_by_band(&mut spec, &smooth);
+        eprintln!("on a smooth road: {smooth:.3?}");
         assert!(
             smooth[0] < 0.5 * real[0] && smooth[1] < 0.5 * real[1],
             "{smooth:?}"
