@@ -14,11 +14,6 @@ use serde::Serialize;
 /// Standard gravity used by the simulator, m/s^2.
 pub const G_MPS2: f64 = 9.80665;
 
-/// Road unevenness reaches the body through the tyre and the unsprung mass of each
-/// wheel, taken as a first-order low-pass of this corner frequency, Hz (wheel hop is at
-/// 10-15 Hz; above it a wheel no longer pushes the body).
-const WHEEL_PASS_HZ: f64 = 6.0;
-
 /// Ground truth at one IMU sample time.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Truth {
@@ -153,15 +148,14 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let (mut v, mut s) = (0.0f64, 0.0f64);
     // Suspension state (rad, rad/s).
     let (mut beta, mut beta_dot) = (0.0f64, 0.0f64);
-    // Road unevenness under the axles and the body's answer to it through its heave
-    // (m, m/s) and pitch (rad, rad/s) modes, on top of the smooth road it follows
-    // exactly; `rough_in` holds the last (heave, pitch) inputs for their rates.
-    let mut profile = super::roughness::Profile::new(&sc.road.roughness);
-    let wh = std::f64::consts::TAU * veh.heave_freq_hz;
-    let (mut heave, mut heave_dot, mut rho, mut rho_dot) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-    let mut rough_in: Option<(f64, f64)> = None;
-    let mut wheel_z: Option<(f64, f64)> = None;
-    let wheel_gain = 1.0 - (-std::f64::consts::TAU * WHEEL_PASS_HZ * h).exp();
+    // The body's answer to the road's unevenness.
+    let mut ride = super::roughness::Ride::new(
+        &sc.road.roughness,
+        veh.wheelbase_m,
+        (veh.heave_freq_hz, veh.heave_damping),
+        (veh.pitch_freq_hz, veh.pitch_damping),
+        h,
+    );
 
     let acc_sigma = sen.acc_noise_ug_rthz * 1e-6 * G_MPS2 * sen.imu_rate_hz.sqrt();
     let gyro_sigma = sen.gyro_noise_dps_rthz * sen.imu_rate_hz.sqrt();
@@ -217,28 +211,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let (kappa, psi) = sc.road.heading(s);
         let load = sc.load_pitch_deg_at(t).to_radians();
         let shock: f64 = sc.shocks.iter().map(|x| x.pitch_rad(t)).sum();
-        // The suspension answers the unevenness under both axles: spring and damper
-        // between the body and the road input, for heave and for pitch.
-        // Each wheel passes it through its tyre and unsprung mass (`WHEEL_PASS_HZ`).
-        let z_road = (profile.height_m(sf), profile.height_m(sr));
-        let (zf, zr) = match wheel_z {
-            Some((f, r)) => (
-                f + wheel_gain * (z_road.0 - f),
-                r + wheel_gain * (z_road.1 - r),
-            ),
-            None => z_road,
-        };
-        wheel_z = Some((zf, zr));
-        let u = (0.5 * (zf + zr), (zf - zr) / veh.wheelbase_m);
-        let (u_h, u_p) = u;
-        let (du_h, du_p) = rough_in.map_or((0.0, 0.0), |p| ((u_h - p.0) / h, (u_p - p.1) / h));
-        if rough_in.is_none() {
-            // The car starts at rest on the road as it is.
-            (heave, rho) = u;
-        }
-        rough_in = Some(u);
-        let heave_dd = wh * wh * (u_h - heave) + 2.0 * veh.heave_damping * wh * (du_h - heave_dot);
-        let rho_dd = wn * wn * (u_p - rho) + 2.0 * veh.pitch_damping * wn * (du_p - rho_dot);
+        let (rho, heave_dd) = ride.step(sf, sr, h);
         let pitch = gam + load + beta + shock + rho;
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
             * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch);
@@ -390,10 +363,6 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
         beta_dot += beta_dd * h;
         beta += beta_dot * h;
-        heave_dot += heave_dd * h;
-        heave += heave_dot * h;
-        rho_dot += rho_dd * h;
-        rho += rho_dot * h;
     }
     Drive { imu, wheels, truth }
 }

@@ -2,7 +2,7 @@
 //! displacement spectrum of ISO 8608 (G_d(n) = G_d(n0) (n / n0)^-2, n0 = 0.1 cycle/m),
 //! rolled off by first-order edges at wavelengths of 10 m (longer is the grade's
 //! business) and 0.5 m (the tyre bridges shorter ones). The body feels it through its
-//! suspension (`drive.rs`).
+//! suspension (`Ride`).
 
 use super::noise::Gauss;
 use serde::{Deserialize, Serialize};
@@ -70,6 +70,97 @@ impl Profile {
         }
         let f = x - i as f64;
         self.heights_m[i] * (1.0 - f) + self.heights_m[i + 1] * f
+    }
+}
+
+/// Road unevenness reaches the body through the tyre and the unsprung mass of each
+/// wheel, taken as a first-order low-pass of this corner frequency, Hz (wheel hop is at
+/// 10-15 Hz; above it a wheel no longer pushes the body).
+const WHEEL_PASS_HZ: f64 = 6.0;
+
+/// The body's answer to the unevenness under its axles, on top of the smooth road it
+/// follows exactly: each wheel passes the road through its tyre and unsprung mass, and
+/// a spring and damper between body and wheels carry it into the body's heave and
+/// pitch modes.
+#[derive(Debug, Clone)]
+pub struct Ride {
+    profile: Profile,
+    wheelbase_m: f64,
+    /// Angular frequency (rad/s) and damping ratio of the heave and pitch modes.
+    heave_mode: (f64, f64),
+    pitch_mode: (f64, f64),
+    /// Share of the road a wheel takes up per step.
+    wheel_gain: f64,
+    /// Front and rear wheel heights, m, and the (heave m, pitch rad) input they gave,
+    /// as of the last step; none before the first.
+    last: Option<((f64, f64), (f64, f64))>,
+    /// (heave m, its rate m/s) and (pitch rad, its rate rad/s).
+    heave: (f64, f64),
+    pitch: (f64, f64),
+}
+
+impl Ride {
+    /// `heave_mode` and `pitch_mode`: natural frequency (Hz) and damping ratio; `step_s`,
+    /// the fixed step of `step`.
+    pub fn new(
+        road: &Roughness,
+        wheelbase_m: f64,
+        heave_mode: (f64, f64),
+        pitch_mode: (f64, f64),
+        step_s: f64,
+    ) -> Self {
+        let w = |(hz, zeta): (f64, f64)| (std::f64::consts::TAU * hz, zeta);
+        Self {
+            profile: Profile::new(road),
+            wheelbase_m,
+            heave_mode: w(heave_mode),
+            pitch_mode: w(pitch_mode),
+            wheel_gain: 1.0 - (-std::f64::consts::TAU * WHEEL_PASS_HZ * step_s).exp(),
+            last: None,
+            heave: (0.0, 0.0),
+            pitch: (0.0, 0.0),
+        }
+    }
+
+    /// With the axles at `s_front_m` and `s_rear_m`: the body's pitch from the road now
+    /// (rad) and its heave acceleration (m/s^2); then the state moves on by `step_s`.
+    /// The car starts at rest on the road as it is.
+    pub fn step(&mut self, s_front_m: f64, s_rear_m: f64, step_s: f64) -> (f64, f64) {
+        let road = (
+            self.profile.height_m(s_front_m),
+            self.profile.height_m(s_rear_m),
+        );
+        let wheels = match self.last {
+            Some(((f, r), _)) => (
+                f + self.wheel_gain * (road.0 - f),
+                r + self.wheel_gain * (road.1 - r),
+            ),
+            None => road,
+        };
+        let input = (
+            0.5 * (wheels.0 + wheels.1),
+            (wheels.0 - wheels.1) / self.wheelbase_m,
+        );
+        let rate = match self.last {
+            Some((_, prev)) => ((input.0 - prev.0) / step_s, (input.1 - prev.1) / step_s),
+            None => {
+                self.heave.0 = input.0;
+                self.pitch.0 = input.1;
+                (0.0, 0.0)
+            }
+        };
+        self.last = Some((wheels, input));
+        let accel = |(x, dx): (f64, f64), (u, du): (f64, f64), (w, zeta): (f64, f64)| {
+            w * w * (u - x) + 2.0 * zeta * w * (du - dx)
+        };
+        let heave_dd = accel(self.heave, (input.0, rate.0), self.heave_mode);
+        let pitch_dd = accel(self.pitch, (input.1, rate.1), self.pitch_mode);
+        let pitch_rad = self.pitch.0;
+        for (x, dd) in [(&mut self.heave, heave_dd), (&mut self.pitch, pitch_dd)] {
+            x.1 += dd * step_s;
+            x.0 += x.1 * step_s;
+        }
+        (pitch_rad, heave_dd)
     }
 }
 
