@@ -111,6 +111,40 @@ impl Default for RealisticSpec {
     }
 }
 
+impl RealisticSpec {
+    /// Reject settings the ride model cannot run; the error names the key and its range.
+    pub fn check(&self) -> anyhow::Result<()> {
+        let r = self.road_roughness_1e6_m3;
+        if !(r.is_finite() && r >= 0.0) {
+            anyhow::bail!(
+                "realistic.road_roughness_1e6_m3 = {r}: give 0 (a smooth road) or more; \
+                 ISO 8608 class A is 0-32, B 32-128, C 128-512"
+            );
+        }
+        let range = |key: &str, [lo, hi]: [f64; 2], min: f64, max: f64, hint: &str| {
+            if lo.is_finite() && hi.is_finite() && min < lo && lo <= hi && hi <= max {
+                Ok(())
+            } else {
+                Err(anyhow::anyhow!("realistic.{key} = [{lo}, {hi}]: {hint}"))
+            }
+        };
+        range(
+            "heave_freq_hz",
+            self.heave_freq_hz,
+            0.0,
+            20.0,
+            "give [min, max] above 0 Hz; a car body heaves at 1-1.5 Hz",
+        )?;
+        range(
+            "heave_damping",
+            self.heave_damping,
+            0.0,
+            2.0,
+            "give [min, max] damping ratios above 0; a car's are 0.2-0.4",
+        )
+    }
+}
+
 /// What a stop is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StopKind {

@@ -104,7 +104,11 @@ impl DriveSpec {
             }
             t.insert(last.to_string(), value);
         }
-        Ok(toml::Value::Table(table).try_into()?)
+        let spec: Self = toml::Value::Table(table).try_into()?;
+        if let Some(r) = &spec.realistic {
+            r.check()?;
+        }
+        Ok(spec)
     }
 
     /// One simulator scenario per load case. The second load case, when
@@ -298,6 +302,9 @@ mod tests {
             "sensors.imu_rate_hz=fast",
             "name.x=1",
             "seed",
+            "realistic.road_roughness_1e6_m3=-1.0",
+            "realistic.heave_freq_hz=[0.0, 1.2]",
+            "realistic.heave_damping=[0.3, 0.2]",
         ] {
             assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }
