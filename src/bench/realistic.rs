@@ -116,10 +116,8 @@ impl RealisticSpec {
     pub fn check(&self) -> anyhow::Result<()> {
         let r = self.road_roughness_1e6_m3;
         if !(r.is_finite() && r >= 0.0) {
-            anyhow::bail!(
-                "realistic.road_roughness_1e6_m3 = {r}: give 0 (a smooth road) or more; \
-                 ISO 8608 class A is 0-32, B 32-128, C 128-512"
-            );
+            let hint = crate::sim::roughness::PSD_HINT;
+            anyhow::bail!("realistic.road_roughness_1e6_m3 = {r}: {hint}");
         }
         let range = |key: &str, [lo, hi]: [f64; 2], min: f64, max: f64, hint: &str| {
             if lo.is_finite() && hi.is_finite() && min < lo && lo <= hi && hi <= max {

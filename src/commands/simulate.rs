@@ -206,6 +206,10 @@ pub fn drive(
                 }
                 let mut sc: crate::sim::Scenario = toml::from_str(&text)
                     .with_context(|| format!("scenario {} is not valid", p.display()))?;
+                sc.road
+                    .roughness
+                    .check()
+                    .with_context(|| format!("scenario {} is not valid", p.display()))?;
                 sc.seed = seed.unwrap_or(1);
                 sc
             }

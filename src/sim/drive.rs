@@ -211,7 +211,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let (kappa, psi) = sc.road.heading(s);
         let load = sc.load_pitch_deg_at(t).to_radians();
         let shock: f64 = sc.shocks.iter().map(|x| x.pitch_rad(t)).sum();
-        let (rho, heave_dd) = ride.step(sf, sr, h);
+        let (rho, heave_dd) = ride.step(sf, sr);
         let pitch = gam + load + beta + shock + rho;
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
             * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch);

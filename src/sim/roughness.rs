@@ -26,6 +26,22 @@ pub struct Roughness {
     pub seed: u64,
 }
 
+/// What a road's unevenness may be, for the errors that reject others.
+pub const PSD_HINT: &str =
+    "give 0 (a smooth road) or more, in 1e-6 m^3; ISO 8608 class A is 0-32, B 32-128, C 128-512";
+
+impl Roughness {
+    /// Reject a degree the profile cannot be drawn with; the error names the key.
+    pub fn check(&self) -> anyhow::Result<()> {
+        let r = self.psd_1e6_m3;
+        if r.is_finite() && r >= 0.0 {
+            Ok(())
+        } else {
+            anyhow::bail!("road.roughness.psd_1e6_m3 = {r}: {PSD_HINT}")
+        }
+    }
+}
+
 /// The height profile of a `Roughness`, drawn as far ahead as it is asked for.
 #[derive(Debug, Clone)]
 pub struct Profile {
@@ -89,7 +105,8 @@ pub struct Ride {
     /// Angular frequency (rad/s) and damping ratio of the heave and pitch modes.
     heave_mode: (f64, f64),
     pitch_mode: (f64, f64),
-    /// Share of the road a wheel takes up per step.
+    /// Fixed step of `step`, s, and the share of the road a wheel takes up in it.
+    step_s: f64,
     wheel_gain: f64,
     /// Front and rear wheel heights, m, and the (heave m, pitch rad) input they gave,
     /// as of the last step; none before the first.
@@ -115,6 +132,7 @@ impl Ride {
             wheelbase_m,
             heave_mode: w(heave_mode),
             pitch_mode: w(pitch_mode),
+            step_s,
             wheel_gain: 1.0 - (-std::f64::consts::TAU * WHEEL_PASS_HZ * step_s).exp(),
             last: None,
             heave: (0.0, 0.0),
@@ -123,9 +141,10 @@ impl Ride {
     }
 
     /// With the axles at `s_front_m` and `s_rear_m`: the body's pitch from the road now
-    /// (rad) and its heave acceleration (m/s^2); then the state moves on by `step_s`.
+    /// (rad) and its heave acceleration (m/s^2); then the state moves on by one step.
     /// The car starts at rest on the road as it is.
-    pub fn step(&mut self, s_front_m: f64, s_rear_m: f64, step_s: f64) -> (f64, f64) {
+    pub fn step(&mut self, s_front_m: f64, s_rear_m: f64) -> (f64, f64) {
+        let step_s = self.step_s;
         let road = (
             self.profile.height_m(s_front_m),
             self.profile.height_m(s_rear_m),
@@ -193,5 +212,16 @@ mod tests {
         let mut q = Profile::new(&r);
         assert_eq!(q.height_m(1234.5), p.height_m(1234.5));
         assert_eq!(Profile::new(&Roughness::default()).height_m(10.0), 0.0);
+        // A degree it cannot be drawn with is an error naming the key.
+        assert!(r.check().is_ok());
+        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+            let e = Roughness {
+                psd_1e6_m3: bad,
+                seed: 7,
+            }
+            .check()
+            .unwrap_err();
+            assert!(e.to_string().contains("road.roughness.psd_1e6_m3"), "{e}");
+        }
     }
 }
