@@ -33,11 +33,6 @@ const MAX_RESIDUAL_MPS2: f64 = 1.0;
 /// How long past the first settled sample the fit keeps reading, s.
 const FIT_TAIL_S: f64 = 0.5;
 
-/// Samples whose angular acceleration is below this carry gyro noise more than
-/// rocking (0.007 rad/s^2 for a 0.01 deg/s/sqrt(Hz) gyro after the smoothing); noise in
-/// the regressor would shorten the fitted arm, so they are left out, rad/s^2.
-const MIN_ALPHA_RPS2: f64 = 0.05;
-
 /// Normal equations of the lever-arm fit.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct LeverFit {
@@ -195,10 +190,13 @@ impl Estimator {
         // The smoothing reaches 2 H samples either side: keep braking out of it.
         let first = rest + 2 * h + 2;
         while i > first {
-            if let Some((alpha, omega)) = self
-                .rocking_at(i)
-                .filter(|(a, _)| a.norm() >= MIN_ALPHA_RPS2)
-            {
+            // Every sample of the rocking enters, whatever its angular acceleration:
+            // samples chosen by that noisy regressor would be those whose noise added
+            // to the rocking, and `remove_noise` takes off only the noise's mean share.
+            // With a 0.03-0.05 deg/s/sqrt(Hz) gyro a cut at 0.05 rad/s^2 kept mostly
+            // noise late in the rocking, and the arm came out short enough to bias the
+            // deceleration windows by +0.05 to +0.12 deg.
+            if let Some((alpha, omega)) = self.rocking_at(i) {
                 let g_imu = q.inverse() * up;
                 let res = self.acc_smoothed_like_rocking(i) - g_imu;
                 let m = skew(&alpha) + skew(&omega) * skew(&omega);
