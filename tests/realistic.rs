@@ -454,8 +454,8 @@ fn the_lever_arm_learnt_from_rocking_removes_the_bias_of_a_misconfigured_one() {
 /// the force on the angular acceleration differentiated from the gyro; samples chosen by
 /// that noisy regressor were those whose noise added to the rocking, and with a gyro of
 /// 0.05 deg/s/sqrt(Hz) the deceleration windows of these drives sat +0.098 deg off on
-/// average (the arm 5-10 % short); now -0.024. Bound: two standard errors of the mean
-/// of about 180 windows 0.38-0.41 deg rms.
+/// average (the arm 5 % short); now +0.019. Bound: two standard errors of the mean of
+/// about 180 windows 0.38 deg rms.
 #[test]
 fn a_noisy_gyro_does_not_bias_the_deceleration_windows_through_the_learnt_arm() {
     let mut errs = Vec::new();
