@@ -6,7 +6,7 @@ use leveld::bench::realistic::{RealisticSpec, StopKind};
 use leveld::bench::stops::{StopChecks, check};
 use leveld::bench::suite::{Case, DriveSpec};
 use leveld::estimator::{Condition, Estimate, Estimator, EstimatorConfig, Event};
-use leveld::sim::{Input, simulate};
+use leveld::sim::{Input, Sensors, simulate};
 
 /// Text of a shipped realistic scenario file.
 fn shipped(name: &str) -> String {
@@ -29,15 +29,20 @@ fn spec(seed: u64, stops: usize, r: RealisticSpec) -> DriveSpec {
     s
 }
 
-/// `s` with wheels that read zero below `kmh`.
-fn with_dead_zone(mut s: DriveSpec, kmh: f64) -> DriveSpec {
+/// `s` with its sensors changed by `change`.
+fn with_sensors(mut s: DriveSpec, change: impl FnOnce(&mut Sensors)) -> DriveSpec {
     let mut sensors = s
         .sensors
         .clone()
         .expect("the urban scenario sets its sensors");
-    sensors.wheel_zero_below_kmh = kmh;
+    change(&mut sensors);
     s.sensors = Some(sensors);
     s
+}
+
+/// `s` with wheels that read zero below `kmh`.
+fn with_dead_zone(s: DriveSpec, kmh: f64) -> DriveSpec {
+    with_sensors(s, |x| x.wheel_zero_below_kmh = kmh)
 }
 
 /// Every event leveld, as configured by default, emits over `drive`.
@@ -462,12 +467,7 @@ fn a_noisy_gyro_does_not_bias_the_deceleration_windows_through_the_learnt_arm() 
     for seed in 101..117 {
         let mut s = DriveSpec::parse(&shipped("urban")).unwrap();
         s.seed = seed;
-        let mut sensors = s
-            .sensors
-            .clone()
-            .expect("the urban scenario sets its sensors");
-        sensors.gyro_noise_dps_rthz = 0.05;
-        s.sensors = Some(sensors);
+        let s = with_sensors(s, |x| x.gyro_noise_dps_rthz = 0.05);
         let case: Case = s.cases().remove(0);
         errs.extend(window_errors(
             &case,
