@@ -47,11 +47,14 @@ impl LeverFit {
     /// over `n` samples: noise of variance `var_alpha` per axis adds 2 var_alpha to each
     /// diagonal entry of skew(alpha)^T skew(alpha). Left in, it shortens the fitted arm
     /// (about 2 % with a 0.01 deg/s/sqrt(Hz) gyro at 1.3 Hz rocking). An axis that
-    /// saw little but noise stays at zero rather than going negative.
-    fn remove_noise(&mut self, n: usize, var_alpha: f64) {
+    /// saw little but noise stays at zero rather than going negative. Returns what it
+    /// took off each diagonal entry.
+    fn remove_noise(&mut self, n: usize, var_alpha: f64) -> f64 {
+        let noise = n as f64 * 2.0 * var_alpha;
         for k in [0, 4, 8] {
-            self.mtm[k] = (self.mtm[k] - n as f64 * 2.0 * var_alpha).max(0.0);
+            self.mtm[k] = (self.mtm[k] - noise).max(0.0);
         }
+        noise
     }
 
     fn add(&mut self, m: &Matrix3<f64>, res: &Vector3<f64>) {
@@ -217,9 +220,8 @@ impl Estimator {
         // noisy gyro) measures nothing: taking the noise's mean share off leaves too
         // little, and one such stop read 9 m for a 2.1 m arm. Its samples are left out
         // when what remains after `remove_noise` is less than the noise taken off.
-        let noise = used as f64 * 2.0 * var_alpha;
         let before = self.lever_fit;
-        fit.remove_noise(used, var_alpha);
+        let noise = fit.remove_noise(used, var_alpha);
         if [0, 8].iter().any(|&k| fit.mtm[k] - before.mtm[k] < noise) {
             return;
         }
