@@ -527,7 +527,39 @@ impl Estimator {
                 };
                 self.apply_load_change(delta, new_pitch, t_s, emit);
             }
-            _ => st.pending = Some((block, block_n, block_t0)),
+            _ => {
+                // A reference taken from a few samples while the body still swung from
+                // the stop can sit a few tenths of a degree off. A longer block that
+                // disagrees with it while the gyro saw no matching turn is the better
+                // reference, not the first half of a load change: without this, the
+                // next short block that happened to agree with the thin reference
+                // dropped the good one and kept the swing.
+                let thin = st.seg_last_s - st.seg_first_s < THIN_REF_S && st.seg_n < block_n;
+                if thin {
+                    let seg_mid = 0.5 * (st.seg_first_s + st.seg_last_s);
+                    let block_mid = 0.5 * (block_t0 + block_last);
+                    let step = bp - sp;
+                    let turn = attitude_from_gravity(&st.mean()).map(|q| {
+                        let q1 = self.carry(q, self.index_at(seg_mid), self.index_at(block_mid));
+                        pitch_of(&q1) - pitch_of(&q)
+                    });
+                    if turn.is_some_and(|g| !turn_matches(step, g, step)) {
+                        let Some(st) = self.standstill.as_mut() else {
+                            return;
+                        };
+                        st.seg_sum = block;
+                        st.seg_n = block_n;
+                        st.seg_first_s = block_t0;
+                        st.seg_last_s = block_last;
+                        st.pending = None;
+                        return;
+                    }
+                }
+                let Some(st) = self.standstill.as_mut() else {
+                    return;
+                };
+                st.pending = Some((block, block_n, block_t0));
+            }
         }
     }
 
