@@ -121,7 +121,9 @@ pub struct EstimatorConfig {
     pub load_prior_windows: f64,
     /// `shift_windows` accepted windows in a row, each this far from the estimate on the
     /// same side, restart the average from them: the pitch changed unseen (a load change
-    /// during a stop too short to confirm it, or while nothing watched). deg.
+    /// during a stop too short to confirm it, or while nothing watched). Their weighted
+    /// mean must also stand four standard errors off, judged by the spread of windows
+    /// before the run, so that a run of noisy or gentle windows is not taken for one. deg.
     pub shift_deg: f64,
     /// See `shift_deg`; 0 disables the check.
     pub shift_windows: usize,

@@ -11,24 +11,62 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// rocked), and the gyro's turn over a ramp that ends at drive-off within about 0.1.
 const LOAD_STEP_SD_DEG: f64 = 0.05;
 
+/// A run of windows must stand this many standard errors from the estimate to be taken
+/// for a shift: its weighted mean against the spread of windows of its weight and the
+/// estimate's own standard error. Three windows beyond 0.4 deg on one side also come
+/// from noise: single windows on realistic drives are 0.2-0.45 deg rms, and an estimate
+/// 0.2 deg off (two standard errors early in a drive) sees that in about one run of
+/// three in a hundred, which a drive of 30 windows then takes for a shift.
+const SHIFT_Z: f64 = 4.0;
+
+/// Accepted windows in a row beyond `shift_deg` on one side of the estimate.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct ShiftRun {
+    side: f64,
+    count: usize,
+    /// Sum of the windows' weights, and of weight times distance from the estimate, deg.
+    weight: f64,
+    weighted_dev_deg: f64,
+    /// Spread of a window of weight 1 and the estimate's variance where the run began,
+    /// deg^2: the run's own windows would widen both and hide a shift behind itself.
+    window_var: f64,
+    estimate_var: f64,
+}
+
 impl Estimator {
     /// Count windows in a row that sit beyond `shift_deg` on the same side of the
-    /// estimate; true when `shift_windows` of them (this one included) agree.
-    pub(super) fn track_shift(&mut self, window_deg: f64) -> bool {
+    /// estimate; true when `shift_windows` of them (this one included) agree and their
+    /// weighted mean stands `SHIFT_Z` standard errors from the estimate.
+    pub(super) fn track_shift(&mut self, window_deg: f64, weight: f64) -> bool {
         let (k, thr) = (self.cfg.shift_windows, self.cfg.shift_deg);
         let Some(e) = self.estimate.filter(|_| k >= 2) else {
-            self.shift_run = (0.0, 0);
+            self.shift_run = ShiftRun::default();
             return false;
         };
         let d = window_deg - e.road_to_body_deg;
-        self.shift_run = if d.abs() <= thr {
-            (0.0, 0)
-        } else if d.signum() == self.shift_run.0 {
-            (self.shift_run.0, self.shift_run.1 + 1)
-        } else {
-            (d.signum(), 1)
-        };
-        self.shift_run.1 >= k
+        let r = &mut self.shift_run;
+        if d.abs() <= thr {
+            *r = ShiftRun::default();
+            return false;
+        }
+        if d.signum() != r.side {
+            let estimate_var = e.std_err_deg.powi(2);
+            *r = ShiftRun {
+                side: d.signum(),
+                window_var: estimate_var * e.weight.max(1.0),
+                estimate_var,
+                ..ShiftRun::default()
+            };
+        }
+        r.count += 1;
+        r.weight += weight;
+        r.weighted_dev_deg += weight * d;
+        if r.count < k || r.weight <= 0.0 {
+            return false;
+        }
+        let mean_dev = r.weighted_dev_deg / r.weight;
+        let sd = (r.window_var / r.weight + r.estimate_var).sqrt();
+        mean_dev.abs() > SHIFT_Z * sd
     }
 
     pub(super) fn apply_load_change(
@@ -39,7 +77,7 @@ impl Estimator {
         emit: &mut dyn FnMut(Event),
     ) {
         self.baseline_pitch_rad = Some(new_pitch_rad);
-        self.shift_run = (0.0, 0);
+        self.shift_run = ShiftRun::default();
         self.avg.restart_shifted(
             delta_rad.to_degrees(),
             LOAD_STEP_SD_DEG,
@@ -137,12 +175,12 @@ impl Estimator {
                 }
                 // A window known to be less reliable than a settled one neither starts
                 // nor breaks a run of windows that show a shift.
-                let shifted = weight_share >= 1.0 && self.track_shift(r2b.to_degrees());
                 let weight = if self.cfg.weight_windows {
                     window_weight(g.duration_s, g.distance_m) * weight_share
                 } else {
                     1.0
                 };
+                let shifted = weight_share >= 1.0 && self.track_shift(r2b.to_degrees(), weight);
                 let open_pair = self.open_pair.take();
                 let paired = condition == Condition::AccelAfterStop
                     && self.cfg.pair_stop_windows
@@ -160,7 +198,7 @@ impl Estimator {
                     let before = self.estimate.map_or(0.0, |e| e.road_to_body_deg);
                     self.avg.restart_from_newest(self.cfg.shift_windows);
                     self.refresh_estimate();
-                    self.shift_run = (0.0, 0);
+                    self.shift_run = ShiftRun::default();
                     let after = self.estimate.map_or(before, |e| e.road_to_body_deg);
                     emit(Event::PitchShifted {
                         t_s,
@@ -255,7 +293,68 @@ impl Estimator {
 
 #[cfg(test)]
 mod tests {
+    use super::super::{Condition, Estimator, EstimatorConfig, Event};
+    use super::window::WindowGeometry;
     use super::window_weight;
+
+    /// Report one accepted window of `value_deg` that took `duration_s` over 3 m;
+    /// returns the shift it caused, deg.
+    fn window(est: &mut Estimator, t_s: f64, value_deg: f64, duration_s: f64) -> Option<f64> {
+        let g = WindowGeometry {
+            slope_rad: 0.0,
+            distance_m: 3.0,
+            duration_s,
+            start_s: t_s,
+            chord_deviation_m: 0.0,
+            max_yaw_rate_rps: 0.0,
+            max_lateral_acc_mps2: 0.0,
+        };
+        let mut shift = None;
+        let imu = value_deg.to_radians();
+        est.report_window(Ok(g), Condition::DecelBeforeStop, imu, t_s, &mut |e| {
+            if let Event::PitchShifted { delta_deg, .. } = e {
+                shift = Some(delta_deg);
+            }
+        });
+        shift
+    }
+
+    /// An estimate of 1.0 deg from 16 brisk windows that spread 0.25 deg.
+    fn settled() -> Estimator {
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        for i in 0..16 {
+            let noise = [0.2, -0.2, 0.3, -0.3][i % 4];
+            assert_eq!(window(&mut est, i as f64, 1.0 + noise, 2.0), None);
+        }
+        let e = est.estimate.unwrap();
+        assert!((e.road_to_body_deg - 1.0).abs() < 0.02, "{e:?}");
+        est
+    }
+
+    #[test]
+    fn a_run_of_windows_is_a_shift_only_when_its_mean_stands_clear_of_the_noise() {
+        // Three brisk windows 0.5 deg low: each beyond `shift_deg`, but with windows
+        // that spread 0.3 deg their mean is 3 standard errors off, which noise does.
+        let mut est = settled();
+        for t in 20..23 {
+            assert_eq!(window(&mut est, t as f64, 0.5, 2.0), None);
+        }
+        // Three gentle drive-offs 0.7 deg high weigh a quarter each: still noise.
+        let mut est = settled();
+        for t in 20..23 {
+            assert_eq!(window(&mut est, t as f64, 1.7, 4.0), None);
+        }
+        // The pitch moved by 1 deg unseen: the third brisk window shows it.
+        let mut est = settled();
+        assert_eq!(window(&mut est, 20.0, 2.05, 2.0), None);
+        assert_eq!(window(&mut est, 21.0, 1.95, 2.0), None);
+        let shift = window(&mut est, 22.0, 2.0, 2.0).expect("a shift");
+        let e = est.estimate.unwrap();
+        assert!(
+            shift > 0.8 && (e.road_to_body_deg - 2.0).abs() < 0.05,
+            "{shift} {e:?}"
+        );
+    }
 
     #[test]
     fn long_windows_weigh_less_and_the_weight_is_bounded() {

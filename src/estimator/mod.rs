@@ -54,8 +54,8 @@ pub struct Estimator {
     motion_unknown: bool,
     /// A load step seen when motion was unknown, waiting for a window: (delta rad, new pitch rad).
     pending_load: Option<(f64, f64)>,
-    /// Accepted windows in a row beyond `shift_deg` from the estimate: (side, count).
-    shift_run: (f64, usize),
+    /// Accepted windows in a row beyond `shift_deg` from the estimate.
+    shift_run: fusion::ShiftRun,
     quiet_since: Option<f64>,
     /// Odometry since the last standstill ended, m.
     travelled_m: f64,
@@ -136,7 +136,7 @@ impl Estimator {
             wheels_stopped: false,
             motion_unknown: true,
             pending_load: None,
-            shift_run: (0.0, 0),
+            shift_run: fusion::ShiftRun::default(),
             quiet_since: None,
             travelled_m: 0.0,
             standstill: None,
