@@ -191,21 +191,27 @@ fn gentle_drive_offs_from_stops_too_short_to_settle_give_windows() {
     assert_unbiased(&errs, 0.62);
 }
 
-/// Urban seed 104, 5P: the load ramps in 1.9 s into a standstill that began while the
-/// body still rocked, with a 0.16 s gap in the IMU frames. Anchored on the raw mean
-/// force of the rocking body, the motion tracker saw 0.098 m/s and ended the standstill
-/// while the car stood still; the load change was never measured at its stop.
-#[test]
-fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
-    let text = shipped("urban");
-    let mut s = DriveSpec::parse(&text).unwrap();
-    s.seed = 104;
+/// Shipped urban drive `seed` with 5P, its events, and when its load stop began and
+/// ended, s.
+fn urban_load_stop(seed: u64) -> (leveld::sim::Drive, Vec<Event>, f64, f64) {
+    let mut s = DriveSpec::parse(&shipped("urban")).unwrap();
+    s.seed = seed;
     let case = &s.cases()[1];
     let plan = case.plan.as_ref().unwrap();
     let (k, _) = plan.load_change.unwrap();
     let (t_stop, t_go, ..) = plan.stops[k];
     let drive = simulate(&case.scenario);
     let ev = drive_events(&drive);
+    (drive, ev, t_stop, t_go)
+}
+
+/// Urban seed 104, 5P: the load ramps in 1.9 s into a standstill that began while the
+/// body still rocked, with a 0.16 s gap in the IMU frames. Anchored on the raw mean
+/// force of the rocking body, the motion tracker saw 0.098 m/s and ended the standstill
+/// while the car stood still; the load change was never measured at its stop.
+#[test]
+fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
+    let (drive, ev, t_stop, t_go) = urban_load_stop(104);
     // The standstill of the load stop lasts until the car pulls away.
     let ended = ev.iter().find_map(|e| match e {
         Event::StandstillEnded { t_s, .. } if *t_s > t_stop && *t_s < t_go + 2.0 => Some(*t_s),
@@ -231,15 +237,7 @@ fn a_load_change_on_a_body_still_rocking_is_not_taken_for_a_drive_off() {
 /// the swing: 0.866 deg for 1.000.
 #[test]
 fn a_reference_caught_in_the_swing_after_a_stop_gives_way_to_the_rest_after_it() {
-    let text = shipped("urban");
-    let mut s = DriveSpec::parse(&text).unwrap();
-    s.seed = 101;
-    let case = &s.cases()[1];
-    let plan = case.plan.as_ref().unwrap();
-    let (k, _) = plan.load_change.unwrap();
-    let (t_stop, t_go, ..) = plan.stops[k];
-    let drive = simulate(&case.scenario);
-    let ev = drive_events(&drive);
+    let (drive, ev, t_stop, t_go) = urban_load_stop(101);
     let step = drive.truth_at(t_go).load_pitch_deg - drive.truth_at(t_stop).load_pitch_deg;
     let delta = load_change_between(&ev, t_stop, t_go);
     // Within the uncertainty the estimator gives a load step measured at rest.
