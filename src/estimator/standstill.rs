@@ -181,6 +181,18 @@ impl Standstill {
     pub(super) fn mean(&self) -> Vector3<f64> {
         self.seg_sum / self.seg_n.max(1) as f64
     }
+    /// Make the settled stretch of `n` samples summing to `sum`, from `first_s` to
+    /// `last_s`, the stop's reference in place of the current one.
+    fn restart_segment(&mut self, sum: Vector3<f64>, n: u64, first_s: f64, last_s: f64) {
+        self.seg_sum = sum;
+        self.seg_n = n;
+        self.seg_first_s = first_s;
+        self.seg_last_s = last_s;
+    }
+    /// Middle of the current reference's span, s.
+    fn segment_mid_s(&self) -> f64 {
+        0.5 * (self.seg_first_s + self.seg_last_s)
+    }
     pub(super) fn settled_s(&self) -> f64 {
         if self.seg_n == 0 {
             0.0
@@ -455,10 +467,7 @@ impl Estimator {
         st.clear_block();
         st.block_t0_s = t_s;
         if st.seg_n == 0 {
-            st.seg_sum = block;
-            st.seg_n = block_n;
-            st.seg_first_s = block_t0;
-            st.seg_last_s = block_last;
+            st.restart_segment(block, block_n, block_t0, block_last);
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
@@ -484,24 +493,15 @@ impl Estimator {
                 // body still swung (its lever-arm motion left in the force) does not.
                 let new_mean = (psum + block) / (pn + block_n) as f64;
                 let sf_delta = pitch_from(&new_mean).unwrap_or(bp) - sp;
-                let (seg_mid, new_mid) = (
-                    0.5 * (st.seg_first_s + st.seg_last_s),
-                    0.5 * (pt0 + block_last),
-                );
-                let seg_mean = st.mean();
-                let gyro_delta = attitude_from_gravity(&seg_mean).map(|q| {
-                    let q1 = self.carry(q, self.index_at(seg_mid), self.index_at(new_mid));
-                    pitch_of(&q1) - pitch_of(&q)
-                });
+                let new_mid = 0.5 * (pt0 + block_last);
+                let reference = *st;
+                let gyro_delta = self.turn_since_reference(&reference, new_mid);
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
                 if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta)) {
                     // The newer stretch is the better reference; the load stays.
-                    st.seg_sum = psum + block;
-                    st.seg_n = pn + block_n;
-                    st.seg_first_s = pt0;
-                    st.seg_last_s = block_last;
+                    st.restart_segment(psum + block, pn + block_n, pt0, block_last);
                     return;
                 }
                 if !st.settled_done {
@@ -512,10 +512,7 @@ impl Estimator {
                     return;
                 };
                 let thin_ref = st.seg_last_s - st.seg_first_s < THIN_REF_S;
-                st.seg_sum = psum + block;
-                st.seg_n = pn + block_n;
-                st.seg_first_s = pt0;
-                st.seg_last_s = block_last;
+                st.restart_segment(psum + block, pn + block_n, pt0, block_last);
                 let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
                 // A reference that spans less than one period of the body's pitch mode
                 // holds the rocking two ways: the force carries the lever arm's
@@ -536,21 +533,14 @@ impl Estimator {
                 // dropped the good one and kept the swing.
                 let thin = st.seg_last_s - st.seg_first_s < THIN_REF_S && st.seg_n < block_n;
                 if thin {
-                    let seg_mid = 0.5 * (st.seg_first_s + st.seg_last_s);
-                    let block_mid = 0.5 * (block_t0 + block_last);
                     let step = bp - sp;
-                    let turn = attitude_from_gravity(&st.mean()).map(|q| {
-                        let q1 = self.carry(q, self.index_at(seg_mid), self.index_at(block_mid));
-                        pitch_of(&q1) - pitch_of(&q)
-                    });
+                    let reference = *st;
+                    let turn = self.turn_since_reference(&reference, 0.5 * (block_t0 + block_last));
                     if turn.is_some_and(|g| !turn_matches(step, g, step)) {
                         let Some(st) = self.standstill.as_mut() else {
                             return;
                         };
-                        st.seg_sum = block;
-                        st.seg_n = block_n;
-                        st.seg_first_s = block_t0;
-                        st.seg_last_s = block_last;
+                        st.restart_segment(block, block_n, block_t0, block_last);
                         st.pending = None;
                         return;
                     }
@@ -561,6 +551,15 @@ impl Estimator {
                 st.pending = Some((block, block_n, block_t0));
             }
         }
+    }
+
+    /// Pitch turn the gyro saw from the middle of the stop's reference to `t_s`, rad,
+    /// starting from the attitude of the reference's gravity.
+    fn turn_since_reference(&self, st: &Standstill, t_s: f64) -> Option<f64> {
+        attitude_from_gravity(&st.mean()).map(|q| {
+            let q1 = self.carry(q, self.index_at(st.segment_mid_s()), self.index_at(t_s));
+            pitch_of(&q1) - pitch_of(&q)
+        })
     }
 
     /// Close the current block once no quiet sample can still join it. A pause of
