@@ -334,7 +334,7 @@ mod tests {
     #[test]
     fn a_run_of_windows_is_a_shift_only_when_its_mean_stands_clear_of_the_noise() {
         // Three brisk windows 0.5 deg low: each beyond `shift_deg`, but with windows
-        // that spread 0.3 deg their mean is 3 standard errors off, which noise does.
+        // that spread 0.25 deg their mean is only 3 standard errors off, which noise does.
         let mut est = settled();
         for t in 20..23 {
             assert_eq!(window(&mut est, t as f64, 0.5, 2.0), None);
