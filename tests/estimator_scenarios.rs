@@ -264,3 +264,33 @@ fn the_accelerometer_bias_learnt_at_stops_survives_a_restart_and_a_corrupt_one_i
         assert!(err.to_string().contains("stop_gravity_mps2"), "{err}");
     }
 }
+
+/// The body still rocks (1.3 Hz, 0.1 deg, decaying over seconds) as the first
+/// standstill begins, where the gyro bias is first taken from the mean rate.
+#[test]
+fn a_first_standstill_begun_on_a_rocking_body_does_not_keep_the_bias_from_settling() {
+    let mut speed = SpeedProfile::default().hold(10.0);
+    for _ in 0..4 {
+        speed = speed.stop_go(0.0, 1.5, 6.0, 1.0, 1.5).hold(8.0);
+    }
+    let sc = Scenario {
+        speed,
+        shocks: vec![leveld::sim::scenario::Shock {
+            t_s: 0.0,
+            amplitude_deg: 0.1,
+            freq_hz: 1.3,
+            decay_s: 1.5,
+        }],
+        ..base(3)
+    };
+    let (ev, _, _) = run(&sc, EstimatorConfig::default());
+    let ended_early = ev
+        .iter()
+        .filter(|e| matches!(e, Event::StandstillEnded { duration_s, .. } if *duration_s < 5.0))
+        .count();
+    assert_eq!(
+        ended_early, 0,
+        "standstills ended while the car stood: {ev:?}"
+    );
+    assert!(accepted(&ev) >= 6, "{} windows", accepted(&ev));
+}

@@ -80,6 +80,8 @@ pub struct Estimator {
     gyro_noise: stillness::GyroNoise,
     /// The last stillness window was close enough to the bias to update it.
     bias_window_ok: bool,
+    /// A settled block has taught `bias_rps` (or it was restored from a saved state).
+    bias_taught: bool,
     /// Mean specific force over the last stillness window, m/s^2.
     still_mean_acc: Vector3<f64>,
     /// The IMU saw the car move while the wheels read zero (a creep or a drive-off in
@@ -142,6 +144,7 @@ impl Estimator {
             standstill: None,
             bias_rps: None,
             bias_window_ok: false,
+            bias_taught: false,
             gyro_noise: stillness::GyroNoise::default(),
             still_mean_acc: Vector3::zeros(),
             imu_moved: false,

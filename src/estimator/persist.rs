@@ -109,6 +109,7 @@ impl Estimator {
         self.bias_rps = st
             .gyro_bias_dps
             .map(|b| Vector3::from(b).map(f64::to_radians));
+        self.bias_taught = self.bias_rps.is_some();
         self.baseline_pitch_rad = st.baseline_pitch_deg.map(f64::to_radians);
         if let Some(g) = st.gravity_mps2
             && !(g.is_finite() && (5.0..15.0).contains(&g))

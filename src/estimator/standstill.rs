@@ -369,6 +369,13 @@ impl Estimator {
 
     pub(super) fn update_standstill(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
         if !self.bias_window_ok {
+            // The first bias is the mean rate where the first standstill began, which
+            // may hold the body's swing; until a settled block has taught it, eq. 7
+            // follows every quiet sample, or a seed further off than the gate would
+            // keep any sample from settling for the rest of the drive.
+            if !self.bias_taught {
+                self.update_bias(s);
+            }
             return;
         }
         // Samples join the reference only once a further stillness window has passed:

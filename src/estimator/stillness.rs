@@ -69,6 +69,7 @@ impl Estimator {
         };
         if teach {
             self.update_bias_block(mean_rps, n);
+            self.bias_taught = true;
         }
     }
 
