@@ -265,6 +265,61 @@ fn the_accelerometer_bias_learnt_at_stops_survives_a_restart_and_a_corrupt_one_i
     }
 }
 
+/// Estimate minus the load's pitch after ten stops on a constant grade of `grade_pct`,
+/// in a car that dives 0.3 deg per m/s^2 and so squats or dives on the grade, deg.
+fn error_on_grade(grade_pct: f64, correct: bool) -> f64 {
+    let mut speed = SpeedProfile::default();
+    for _ in 0..10 {
+        speed = speed.stop_go(8.0, 1.5, 6.0, 1.0, 1.5);
+    }
+    let sc = Scenario {
+        speed: speed.hold(8.0),
+        road: Road::constant(grade_pct.atan2(100.0).to_degrees()),
+        vehicle: Vehicle::default(),
+        ..base(7)
+    };
+    assert!(sc.vehicle.pitch_from_grade && sc.vehicle.pitch_per_accel_deg == 0.3);
+    let cfg = EstimatorConfig {
+        correct_grade_pitch: correct,
+        ..EstimatorConfig::default()
+    };
+    let (_, est, drive) = run(&sc, cfg);
+    let t = drive.imu.last().unwrap().t_s;
+    if correct {
+        // What braking taught is kept across a restart; a corrupt record is refused.
+        let saved = est.state();
+        let mut restored = Estimator::new(EstimatorConfig::default()).unwrap();
+        restored.restore(&saved).unwrap();
+        assert_eq!(restored.pitch_per_force_deg(), est.pitch_per_force_deg());
+        let mut json = serde_json::to_value(&saved).unwrap();
+        json["grade_pitch"]["sum_aa"] = serde_json::json!(-1.0);
+        let corrupt: leveld::estimator::EstimatorState = serde_json::from_value(json).unwrap();
+        let err = restored
+            .restore(&corrupt)
+            .expect_err("a negative sum of squares");
+        assert!(err.to_string().contains("grade_pitch"), "{err}");
+    }
+    est.estimate().unwrap().road_to_body_deg - drive.truth_at(t).load_pitch_deg
+}
+
+#[test]
+fn the_squat_of_a_body_standing_on_a_grade_is_not_taken_for_load() {
+    // Held on a 15 % grade the brakes pass the body g sin(grade) = 1.46 m/s^2: 0.44 deg
+    // of squat facing uphill, of dive facing downhill, in every window's reference.
+    let (up, down) = (error_on_grade(15.0, false), error_on_grade(-15.0, false));
+    assert!(
+        up > 0.3 && down < -0.3,
+        "uncorrected: {up:+.3} / {down:+.3}"
+    );
+    // The dive learnt from braking takes it out. Left: the dive's lag behind the
+    // braking and the prior, a few percent of it, and the windows' own noise.
+    let (up, down) = (error_on_grade(15.0, true), error_on_grade(-15.0, true));
+    assert!(
+        up.abs() < 0.1 && down.abs() < 0.1,
+        "corrected: {up:+.3} / {down:+.3}"
+    );
+}
+
 /// The body still rocks (1.3 Hz, 0.1 deg, decaying over seconds) as the first
 /// standstill begins, where the gyro bias is first taken from the mean rate.
 #[test]

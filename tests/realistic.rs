@@ -1158,8 +1158,14 @@ fn shipped_window_median(velocity_free: bool) -> (f64, usize) {
             let case: Case = s.cases().remove(0);
             let cfg = EstimatorConfig {
                 velocity_free_slope: velocity_free,
+                correct_grade_pitch: false,
                 ..EstimatorConfig::default()
             };
+            // Both slopes share the body's pitch on the grade of each stop (0.03 deg
+            // rms once corrected, 0.1-0.16 on grades of 4 %); the start velocity is
+            // what tells them apart, so it is measured on a body level with its road.
+            let mut case = case;
+            case.scenario.vehicle.pitch_from_grade = false;
             errs.extend(window_errors(&case, cfg, None).iter().map(|e| e.abs()));
         }
     }
@@ -1172,8 +1178,9 @@ fn shipped_window_median(velocity_free: bool) -> (f64, usize) {
 
 /// The same windows, walked from the same starts: the chord to the window's end
 /// carries the start velocity (a body still swinging, a drive-off found late, the
-/// noise integrated at rest), the velocity-free slope does not. Measured: median 0.134
-/// deg against 0.184.
+/// noise integrated at rest), the velocity-free slope does not. Measured: median 0.152
+/// deg against 0.179 (with the body's pitch on each grade in the drives and taken out
+/// by leveld, 0.163 against 0.176).
 #[test]
 fn windows_are_measured_without_the_velocity_the_walk_starts_with() {
     let (free, n) = shipped_window_median(true);

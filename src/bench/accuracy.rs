@@ -119,6 +119,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         short_window_share: 0.0,
         ..d()
     };
+    let no_grade = EstimatorConfig {
+        correct_grade_pitch: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -140,6 +144,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         scale_gyro_gates: false,
         velocity_free_slope: false,
         short_window_share: 0.0,
+        correct_grade_pitch: false,
         ..d()
     };
     vec![
@@ -171,6 +176,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(endpoint_slope, "endpoint-slope")),
         Box::new(Leveld::new(short_windows, "2-m-windows")),
         Box::new(Leveld::new(no_fallback, "no-half-windows")),
+        Box::new(Leveld::new(no_grade, "no-grade-pitch")),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }

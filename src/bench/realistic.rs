@@ -54,6 +54,9 @@ pub struct RealisticSpec {
     pub pitch_freq_hz: [f64; 2],
     pub pitch_damping: [f64; 2],
     pub pitch_per_accel_deg: [f64; 2],
+    /// The body also pitches with gravity's share along a grade (see
+    /// `Vehicle::pitch_from_grade`).
+    pub pitch_from_grade: bool,
     pub lever_arm_m: [f64; 3],
     pub imu_mount_max_deg: [f64; 3],
     pub accel_ramp_s: f64,
@@ -97,6 +100,7 @@ impl Default for RealisticSpec {
             pitch_freq_hz: [1.2, 1.4],
             pitch_damping: [0.2, 0.4],
             pitch_per_accel_deg: [0.15, 0.3],
+            pitch_from_grade: true,
             lever_arm_m: [2.1, 0.65, 0.4],
             imu_mount_max_deg: [0.8, 1.0, 1.5],
             accel_ramp_s: 0.5,
@@ -326,6 +330,7 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
     let vehicle = Vehicle {
         lever_arm_m: r.lever_arm_m,
         pitch_per_accel_deg: pick(&mut g, r.pitch_per_accel_deg),
+        pitch_from_grade: r.pitch_from_grade,
         pitch_freq_hz: pick(&mut g, r.pitch_freq_hz),
         pitch_damping: pick(&mut g, r.pitch_damping),
         heave_freq_hz: pick(&mut gr, r.heave_freq_hz),

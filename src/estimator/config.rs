@@ -171,6 +171,11 @@ pub struct EstimatorConfig {
     /// quarter of its recent samples are below it (a gyro noisier than the gate is
     /// sized for must not leave a stop without reference).
     pub rest_swing_gate_mps2: f64,
+    /// Take out of each window the pitch the body has at rest on its grade
+    /// (`estimator/grade.rs`): the brakes hold gravity's share along the road and the
+    /// body dives or squats under it as under braking. Its pitch per m/s^2 is learnt
+    /// from the deceleration windows.
+    pub correct_grade_pitch: bool,
     /// How windows are combined.
     pub averaging: Averaging,
     /// Number of most recent windows the average keeps.
@@ -224,6 +229,7 @@ impl Default for EstimatorConfig {
             derotated_motion_anchor: true,
             still_blocks_teach_bias: true,
             rest_swing_gate_mps2: 0.05,
+            correct_grade_pitch: true,
             averaging: Averaging::Huber,
             average_capacity: 64,
             window_sigma_prior_deg: 0.2,

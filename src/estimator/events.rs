@@ -35,7 +35,8 @@ pub struct WindowReport {
     pub imu_pitch_deg: f64,
     /// Road slope along body x over the window (eq. 14), deg, positive rising ahead.
     pub road_slope_deg: f64,
-    /// imu_pitch - road_slope (eq. 16), deg.
+    /// imu_pitch - road_slope (eq. 16), less the pitch the body had at rest on that
+    /// slope beyond its pitch on level ground (`correct_grade_pitch`), deg.
     pub road_to_body_deg: f64,
     pub distance_m: f64,
     pub duration_s: f64,

@@ -19,6 +19,9 @@ const LOAD_STEP_SD_DEG: f64 = 0.05;
 /// three in a hundred, which a drive of 30 windows then takes for a shift.
 const SHIFT_Z: f64 = 4.0;
 
+/// Standard gravity, m/s^2: the grade's share of it along the road pitches the body.
+const GRAVITY_MPS2: f64 = 9.80665;
+
 /// Accepted windows in a row beyond `shift_deg` on one side of the estimate.
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct ShiftRun {
@@ -161,7 +164,9 @@ impl Estimator {
     ) {
         match r {
             Ok(g) => {
-                let r2b = imu_pitch_rad - g.slope_rad;
+                let r2b = imu_pitch_rad
+                    - g.slope_rad
+                    - self.grade_pitch_rad(&g, condition, imu_pitch_rad);
                 if let Some((delta, new_pitch)) = self.pending_load.take() {
                     // Keep the suspected load change only if this window agrees with it.
                     let shifted_closer = self.estimate.is_none_or(|e| {
@@ -232,6 +237,25 @@ impl Estimator {
                 })
             }
         }
+    }
+
+    /// The pitch the body had at rest on the window's grade beyond its pitch on level
+    /// ground, rad (`estimator/grade.rs`). A deceleration window first teaches the
+    /// body's dive under braking: its mean pitch against the reference at rest.
+    fn grade_pitch_rad(
+        &mut self,
+        g: &window::WindowGeometry,
+        condition: Condition,
+        imu_pitch_rad: f64,
+    ) -> f64 {
+        if !self.cfg.correct_grade_pitch {
+            return 0.0;
+        }
+        if condition == Condition::DecelBeforeStop {
+            self.grade
+                .learn(g.mean_accel_mps2, g.mean_pitch_rad - imu_pitch_rad);
+        }
+        self.grade.at_rest_rad(g.slope_rad, GRAVITY_MPS2)
     }
 
     pub(super) fn refresh_estimate(&mut self) {
@@ -308,6 +332,8 @@ mod tests {
             chord_deviation_m: 0.0,
             max_yaw_rate_rps: 0.0,
             max_lateral_acc_mps2: 0.0,
+            mean_pitch_rad: 0.0,
+            mean_accel_mps2: 0.0,
         };
         let mut shift = None;
         let imu = value_deg.to_radians();

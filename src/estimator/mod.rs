@@ -16,6 +16,7 @@ pub mod average;
 pub mod config;
 mod events;
 mod fusion;
+mod grade;
 mod gravity;
 mod history;
 mod lever;
@@ -30,6 +31,7 @@ pub mod window;
 pub use average::{Averager, Combined, PairHandle};
 pub use config::{Averaging, ConfigError, EstimatorConfig};
 pub use events::{Condition, DropReason, Estimate, Event, WindowReport};
+pub use grade::GradePitch;
 pub use lever::LeverFit;
 pub use persist::{EstimatorState, StateError};
 pub use types::{ImuSample, WheelSpeeds};
@@ -106,6 +108,8 @@ pub struct Estimator {
     open_pair: Option<PairHandle>,
     baseline_pitch_rad: Option<f64>,
     last_slope_rad: Option<f64>,
+    /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
+    grade: GradePitch,
     estimate: Option<Estimate>,
     /// Pitch the body turned at rest since the settled reference, shown in the estimate
     /// until the settled blocks or the drive-off decide on it, rad.
@@ -171,6 +175,7 @@ impl Estimator {
             open_pair: None,
             baseline_pitch_rad: None,
             last_slope_rad: None,
+            grade: GradePitch::default(),
             estimate: None,
             live_offset_rad: 0.0,
             cfg,
@@ -182,6 +187,12 @@ impl Estimator {
         let mut e = self.estimate?;
         e.road_to_body_deg += self.live_offset_rad.to_degrees();
         Some(e)
+    }
+
+    /// The body's pitch per m/s^2 of longitudinal force learnt from braking, deg
+    /// (`estimator/grade.rs`).
+    pub fn pitch_per_force_deg(&self) -> f64 {
+        self.grade.per_force_rad().to_degrees()
     }
 
     /// Road slope of the last accepted window, deg.

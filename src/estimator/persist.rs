@@ -2,6 +2,7 @@
 
 use super::Estimator;
 use super::average::Averager;
+use super::grade::GradePitch;
 use super::gravity::GravityFilter;
 use super::lever::LeverFit;
 use nalgebra::Vector3;
@@ -29,6 +30,9 @@ pub struct EstimatorState {
     /// magnitude (bias along z included), bias along x and y, m/s^2.
     #[serde(default)]
     pub stop_gravity_mps2: Option<[f64; 3]>,
+    /// The body's pitch against braking learnt from deceleration windows (see `grade`).
+    #[serde(default)]
+    pub grade_pitch: Option<GradePitch>,
 }
 
 impl EstimatorState {
@@ -68,6 +72,7 @@ impl Estimator {
             accel_bias_xy_mps2: self.gravity.map(|g| [g.x.y, g.x.z]),
             lever_fit: Some(self.lever_fit),
             stop_gravity_mps2: self.stop_bias.map(|g| [g.x.x, g.x.y, g.x.z]),
+            grade_pitch: Some(self.grade),
         }
     }
 
@@ -133,6 +138,10 @@ impl Estimator {
         {
             return Err(StateError::Implausible("stop_gravity_mps2"));
         }
+        if st.grade_pitch.is_some_and(|g| !g.is_plausible()) {
+            return Err(StateError::Implausible("grade_pitch"));
+        }
+        self.grade = st.grade_pitch.unwrap_or_default();
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         let prior = Vector3::from(self.cfg.lever_arm_m);
         self.lever_fit = st.lever_fit.unwrap_or_default();

@@ -6,7 +6,7 @@
 //! with a trapezoidal acceleration), which makes forward and backward walks exact
 //! inverses of one another.
 
-use super::attitude::propagate;
+use super::attitude::{pitch_of, propagate};
 use super::types::ImuSample;
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -81,6 +81,11 @@ pub struct WindowGeometry {
     pub chord_deviation_m: f64,
     pub max_yaw_rate_rps: f64,
     pub max_lateral_acc_mps2: f64,
+    /// Time means over the window of the body's pitch, rad, and of its acceleration
+    /// along the start heading, m/s^2 (negative while braking, in either walk
+    /// direction): how far the body dived or squatted under the acceleration.
+    pub mean_pitch_rad: f64,
+    pub mean_accel_mps2: f64,
 }
 
 /// Outcome of feeding a sample.
@@ -117,6 +122,11 @@ pub struct WindowIntegrator {
     last_zx: (f64, f64),
     /// Slope of the velocity-free fit when `distance_m` was reached, rad.
     fit_slope: Option<f64>,
+    /// Time integrals of the body's pitch, rad s, and of the acceleration along
+    /// `heading`, m/s, and their values when `distance_m` was reached.
+    int_pitch: f64,
+    int_accel: f64,
+    ints_at_distance: (f64, f64),
     /// The short fallback window, taken as the walk passed its distance.
     short: Option<Span>,
     active: bool,
@@ -160,6 +170,9 @@ impl WindowIntegrator {
             int_x: 0.0,
             last_zx: (0.0, 0.0),
             fit_slope: None,
+            int_pitch: 0.0,
+            int_accel: 0.0,
+            ints_at_distance: (0.0, 0.0),
             short: None,
             active: false,
         }
@@ -189,6 +202,9 @@ impl WindowIntegrator {
         self.int_x = 0.0;
         self.last_zx = (0.0, 0.0);
         self.fit_slope = None;
+        self.int_pitch = 0.0;
+        self.int_accel = 0.0;
+        self.ints_at_distance = (0.0, 0.0);
         self.short = None;
         self.active = true;
     }
@@ -251,6 +267,9 @@ impl WindowIntegrator {
         self.int_z += 0.5 * (zx.0 + self.last_zx.0) * dt.abs();
         self.int_x += 0.5 * (zx.1 + self.last_zx.1) * dt.abs();
         self.last_zx = zx;
+        let along = |a: Vector3<f64>| a.x * hx + a.y * hy;
+        self.int_pitch += 0.5 * (pitch_of(&q0) + pitch_of(&q1)) * dt.abs();
+        self.int_accel += 0.5 * (along(a0) + along(a1)) * dt.abs();
         // Weights t (T - t) on the acceleration, moved onto the positions: the velocity
         // the walk started with drops out.
         let fit = || {
@@ -266,6 +285,7 @@ impl WindowIntegrator {
                 len: self.horizontal_m,
                 duration_s,
                 fit_slope: Some(fit()),
+                ints: (self.int_pitch, self.int_accel),
                 points: self.track.len(),
                 max_yaw: self.max_yaw,
                 max_lat: self.max_lat,
@@ -277,6 +297,7 @@ impl WindowIntegrator {
         if self.at_distance.is_none() && self.horizontal_m >= self.setup.distance_m {
             self.at_distance = Some((corrected, self.horizontal_m, duration_s));
             self.fit_slope = Some(fit());
+            self.ints_at_distance = (self.int_pitch, self.int_accel);
         }
         if self.at_distance.is_some()
             && self.horizontal_m >= self.setup.distance_m + self.setup.check_extra_m
@@ -324,6 +345,7 @@ impl WindowIntegrator {
             len,
             duration_s,
             fit_slope: self.fit_slope,
+            ints: self.ints_at_distance,
             points: self.track.len(),
             max_yaw: self.max_yaw,
             max_lat: self.max_lat,
@@ -376,6 +398,7 @@ impl WindowIntegrator {
             Some(f) if s.velocity_free && dev <= s.velocity_free_max_chord_m * w.limit_share => f,
             _ => slope_rad,
         };
+        let per_s = 1.0 / w.duration_s.max(1e-9);
         Ok(WindowGeometry {
             slope_rad,
             distance_m: w.len,
@@ -384,6 +407,8 @@ impl WindowIntegrator {
             chord_deviation_m: dev,
             max_yaw_rate_rps: w.max_yaw,
             max_lateral_acc_mps2: w.max_lat,
+            mean_pitch_rad: w.ints.0 * per_s,
+            mean_accel_mps2: w.ints.1 * per_s,
         })
     }
 }
@@ -395,6 +420,8 @@ struct Span {
     len: f64,
     duration_s: f64,
     fit_slope: Option<f64>,
+    /// Integrals of pitch and acceleration over the span (see `WindowGeometry`).
+    ints: (f64, f64),
     /// Track points up to the end of the straightness check.
     points: usize,
     max_yaw: f64,

@@ -146,8 +146,17 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let segs = &sc.speed.segments;
     let (mut seg, mut seg_t0) = (0usize, 0.0f64);
     let (mut v, mut s) = (0.0f64, 0.0f64);
-    // Suspension state (rad, rad/s).
-    let (mut beta, mut beta_dot) = (0.0f64, 0.0f64);
+    // Suspension state (rad, rad/s). The car stands where the drive begins: the body
+    // has settled on the grade under its axles.
+    let beta0 = if veh.pitch_from_grade {
+        let half_wb = 0.5 * veh.wheelbase_m;
+        let (pf, pr) = (sc.road.elevation(half_wb), sc.road.elevation(-half_wb));
+        let gam0 = (pf.1 - pr.1).atan2(pf.0 - pr.0);
+        veh.pitch_per_accel_deg.to_radians() * G_MPS2 * gam0.sin()
+    } else {
+        0.0
+    };
+    let (mut beta, mut beta_dot) = (beta0, 0.0f64);
     // The body's answer to the road's unevenness.
     let mut ride = super::roughness::Ride::new(
         &sc.road.roughness,
@@ -359,7 +368,14 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let v_next = (v + a_step * h).max(0.0);
         s += 0.5 * (v + v_next) * h;
         v = v_next;
-        let target = veh.pitch_per_accel_deg.to_radians() * a_long;
+        // The tyres pass the body the acceleration and, on a grade, gravity's share along
+        // the road (`pitch_from_grade`).
+        let force_long = if veh.pitch_from_grade {
+            a_long + G_MPS2 * gam.sin()
+        } else {
+            a_long
+        };
+        let target = veh.pitch_per_accel_deg.to_radians() * force_long;
         let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
         beta_dot += beta_dd * h;
         beta += beta_dot * h;
@@ -435,5 +451,34 @@ mod tests {
                 v[k]
             );
         }
+    }
+
+    #[test]
+    fn a_body_at_rest_on_a_grade_squats_as_if_it_pulled_away_at_g_sin_grade() {
+        use crate::sim::scenario::{Road, Scenario, Sensors, Vehicle};
+        let rest_pitch = |grade_pct: f64, from_grade: bool| {
+            let sc = Scenario {
+                speed: SpeedProfile::default().hold(6.0),
+                road: Road::constant(grade_pct.atan2(100.0).to_degrees()),
+                load_pitch_deg: 0.0,
+                load_changes: Vec::new(),
+                vehicle: Vehicle {
+                    pitch_per_accel_deg: 0.25,
+                    pitch_from_grade: from_grade,
+                    ..Vehicle::default()
+                },
+                sensors: Sensors::ideal(),
+                shocks: Vec::new(),
+                imu_gaps: Vec::new(),
+                seed: 1,
+            };
+            let d = super::simulate(&sc);
+            d.truth_at(5.0).suspension_deg
+        };
+        // 0.25 deg per m/s^2 times g sin(atan 0.1) = 0.976 m/s^2, nose up facing uphill.
+        assert!((rest_pitch(10.0, true) - 0.244).abs() < 0.005);
+        assert!((rest_pitch(-10.0, true) + 0.244).abs() < 0.005);
+        assert!(rest_pitch(10.0, false).abs() < 1e-6);
+        assert!(rest_pitch(0.0, true).abs() < 1e-6);
     }
 }

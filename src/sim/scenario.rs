@@ -185,6 +185,10 @@ pub struct Vehicle {
     pub lever_arm_m: [f64; 3],
     /// Steady body pitch per longitudinal acceleration, deg per m/s^2 (nose-up when accelerating).
     pub pitch_per_accel_deg: f64,
+    /// The body pitches with the whole longitudinal force the tyres pass to it, which on
+    /// a grade holds gravity's share along the road: a car at rest facing uphill squats
+    /// as if pulling away at g sin(grade). Off, only the acceleration pitches it.
+    pub pitch_from_grade: bool,
     /// Natural frequency of the body pitch mode, Hz.
     pub pitch_freq_hz: f64,
     /// Damping ratio of the body pitch mode.
@@ -215,6 +219,7 @@ impl Default for Vehicle {
         Self {
             lever_arm_m: [2.0, 0.0, 0.3],
             pitch_per_accel_deg: 0.3,
+            pitch_from_grade: true,
             pitch_freq_hz: 1.5,
             pitch_damping: 0.4,
             heave_freq_hz: 1.2,
