@@ -107,6 +107,23 @@ fn wall_s(t: SystemTime) -> f64 {
     }
 }
 
+/// A kernel receive stamp in seconds, cut to whole microseconds as candump writes it:
+/// a drive recorded with candump replays with the very times the daemon saw, and so
+/// to the same output. Exact: the microseconds since the epoch fit an f64's mantissa,
+/// and one division rounds them as parsing the log line does.
+fn frame_stamp_s(t: SystemTime) -> f64 {
+    match t.duration_since(UNIX_EPOCH) {
+        Ok(d) => {
+            let us = d
+                .as_secs()
+                .saturating_mul(1_000_000)
+                .saturating_add(u64::from(d.subsec_micros()));
+            us as f64 / 1e6
+        }
+        Err(e) => -e.duration().as_secs_f64(),
+    }
+}
+
 impl Default for MonoClock {
     fn default() -> Self {
         Self::new()
@@ -151,13 +168,34 @@ impl MonoClock {
     /// Pipeline time of a frame stamped `stamp` by the kernel.
     pub fn frame_s(&mut self, stamp: SystemTime) -> f64 {
         self.sample();
-        wall_s(stamp) + self.offset_s
+        frame_stamp_s(stamp) + self.offset_s
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn a_kernel_stamp_is_the_time_its_candump_line_parses_to() {
+        for (secs, ns) in [
+            (1_733_330_000u64, 123_456_789u32),
+            (1_733_330_000, 999_999_999),
+            (1_733_330_001, 1_000),
+            (4_102_444_800, 500),
+            (12, 345_678_901),
+        ] {
+            let stamp = UNIX_EPOCH + Duration::new(secs, ns);
+            let line = format!("({secs}.{:06}) can0 3E0#00", ns / 1000);
+            let crate::can::candump::Line::Frame(f) =
+                crate::can::candump::parse_line(&line).unwrap()
+            else {
+                panic!("{line}");
+            };
+            assert_eq!(frame_stamp_s(stamp).to_bits(), f.t_s.to_bits(), "{line}");
+        }
+    }
 
     #[test]
     fn steady_time_passes_through() {
