@@ -126,6 +126,8 @@ pub struct WindowIntegrator {
     /// `heading`, m/s, and their values when `distance_m` was reached.
     int_pitch: f64,
     int_accel: f64,
+    /// Body pitch at the last step's end, rad: the next step starts there.
+    last_pitch: f64,
     ints_at_distance: (f64, f64),
     /// The short fallback window, taken as the walk passed its distance.
     short: Option<Span>,
@@ -172,6 +174,7 @@ impl WindowIntegrator {
             fit_slope: None,
             int_pitch: 0.0,
             int_accel: 0.0,
+            last_pitch: 0.0,
             ints_at_distance: (0.0, 0.0),
             short: None,
             active: false,
@@ -204,6 +207,7 @@ impl WindowIntegrator {
         self.fit_slope = None;
         self.int_pitch = 0.0;
         self.int_accel = 0.0;
+        self.last_pitch = pitch_of(&setup.q0);
         self.ints_at_distance = (0.0, 0.0);
         self.short = None;
         self.active = true;
@@ -268,7 +272,9 @@ impl WindowIntegrator {
         self.int_x += 0.5 * (zx.1 + self.last_zx.1) * dt.abs();
         self.last_zx = zx;
         let along = |a: Vector3<f64>| a.x * hx + a.y * hy;
-        self.int_pitch += 0.5 * (pitch_of(&q0) + pitch_of(&q1)) * dt.abs();
+        let pitch = pitch_of(&q1);
+        self.int_pitch += 0.5 * (self.last_pitch + pitch) * dt.abs();
+        self.last_pitch = pitch;
         self.int_accel += 0.5 * (along(a0) + along(a1)) * dt.abs();
         // Weights t (T - t) on the acceleration, moved onto the positions: the velocity
         // the walk started with drops out.
