@@ -99,6 +99,10 @@ pub struct EstimatorConfig {
     pub max_window_time_s: f64,
     /// A gap between IMU samples longer than this breaks a window, s.
     pub max_imu_gap_s: f64,
+    /// A wheel-speed frame may carry a speed this old, s: the ESC derives it from tooth
+    /// periods and filters it, and a gateway may hold it. The checks that compare the
+    /// wheels with the IMU's speed accept any speed the IMU had over that span.
+    pub max_wheel_speed_age_s: f64,
     /// Position of the IMU relative to the body pitch centre in body axes (x fwd, y left, z up), m.
     /// Body pitch under acceleration swings the IMU about that centre; the window removes it.
     pub lever_arm_m: [f64; 3],
@@ -212,6 +216,7 @@ impl Default for EstimatorConfig {
             max_lateral_acc_mps2: 0.5,
             max_window_time_s: 15.0,
             max_imu_gap_s: 0.1,
+            max_wheel_speed_age_s: 0.15,
             lever_arm_m: [2.0, 0.0, 0.3],
             learn_lever_arm: true,
             correct_acc_bias: true,
@@ -292,6 +297,15 @@ impl EstimatorConfig {
         secs("settle_time_s", self.settle_time_s, 60.0)?;
         secs("load_block_s", self.load_block_s, 60.0)?;
         secs("max_imu_gap_s", self.max_imu_gap_s, 5.0)?;
+        if !(self.max_wheel_speed_age_s.is_finite()
+            && (0.0..=1.0).contains(&self.max_wheel_speed_age_s))
+        {
+            return Err(ConfigError {
+                field: "max_wheel_speed_age_s",
+                value: self.max_wheel_speed_age_s,
+                hint: "choose 0..1 s: how old a wheel speed can be when its frame is sent",
+            });
+        }
         if self.zero_speed_time_s > 60.0 {
             return Err(ConfigError {
                 field: "zero_speed_time_s",

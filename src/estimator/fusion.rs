@@ -305,11 +305,21 @@ impl Estimator {
             return;
         }
         let imu_mps = self.fwd.horizontal_speed_mps();
+        // The wheel speed may be up to `max_wheel_speed_age_s` old. The walk began at
+        // rest and pulls away at a steady rate: back then the IMU was that share of its
+        // walk slower.
+        let walked_s = self.fwd.elapsed_s();
+        let aged_mps = if walked_s > 0.0 {
+            imu_mps * (1.0 - self.cfg.max_wheel_speed_age_s / walked_s).max(0.0)
+        } else {
+            imu_mps
+        };
         let Some(ctx) = self.fwd_ctx.as_mut().filter(|c| !c.speed_checked) else {
             return;
         };
         ctx.speed_checked = true;
-        if (imu_mps - wheel_mps).abs() > SPEED_CHECK_TOL_MPS + SPEED_CHECK_SHARE * wheel_mps {
+        let off = (aged_mps - wheel_mps).max(wheel_mps - imu_mps).max(0.0);
+        if off > SPEED_CHECK_TOL_MPS + SPEED_CHECK_SHARE * wheel_mps {
             ctx.speed_mismatch = Some((imu_mps, wheel_mps));
         }
     }

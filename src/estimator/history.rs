@@ -297,22 +297,34 @@ impl Estimator {
         (mean, var.max().max(0.0).sqrt())
     }
 
-    /// Forward speed at history sample `to` (before `rest`) of a car at rest at `rest`
-    /// with attitude `q_rest`, from the accelerometer integrated backwards with the
-    /// gyro-carried attitude, m/s.
-    pub(super) fn speed_before_rest(
+    /// The lowest and highest forward speed (m/s, along the heading at rest) that a car
+    /// at rest at history sample `rest` with attitude `q_rest` had from sample `late`
+    /// back to sample `early`: the accelerometer integrated backwards with the
+    /// gyro-carried attitude. A wheel reading taken somewhere in that span may show any
+    /// of them.
+    pub(super) fn speeds_before_rest(
         &self,
         q_rest: UnitQuaternion<f64>,
         rest: usize,
-        to: usize,
+        late: usize,
+        early: usize,
         g: f64,
-    ) -> f64 {
+    ) -> (f64, f64) {
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, g);
         let heading = q_rest * Vector3::x();
+        let along = |v: &Vector3<f64>| v.x * heading.x + v.y * heading.y;
         let (mut q, mut v) = (q_rest, Vector3::zeros());
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         let mut j = rest;
-        while j > to {
+        loop {
+            if j <= late {
+                let s = along(&v);
+                (lo, hi) = (lo.min(s), hi.max(s));
+            }
+            if j <= early.min(late) {
+                break;
+            }
             let (a, b) = (self.hist.get(j - 1), self.hist.get(j));
             let dt = b.t_s - a.t_s;
             let q_prev =
@@ -322,7 +334,7 @@ impl Estimator {
             q = q_prev;
             j -= 1;
         }
-        v.x * heading.x + v.y * heading.y
+        (lo, hi)
     }
 
     /// Index of the first history sample at or after `t`.

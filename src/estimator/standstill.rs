@@ -266,8 +266,17 @@ impl Estimator {
             if t_rest > t_w && t_rest - t_w < REST_CHECK_SPAN_S && self.hist.get(0).t_s < t_w {
                 let q = attitude_from_gravity(&f_rest);
                 let g = self.gravity_mps2(&f_rest);
-                let v_at_w = q.map(|q| self.speed_before_rest(q, rest, self.index_at(t_w), g));
-                if v_at_w.is_some_and(|v| (v - v_w).abs() > REST_SPEED_TOL_MPS) {
+                // A wheel speed is up to `max_wheel_speed_age_s` old: it may be any
+                // speed the IMU had over that span.
+                let age = self.cfg.max_wheel_speed_age_s;
+                let span_at = |t: f64| {
+                    q.map(|q| {
+                        let (late, early) = (self.index_at(t), self.index_at(t - age));
+                        self.speeds_before_rest(q, rest, late, early, g)
+                    })
+                };
+                let off = |(lo, hi): (f64, f64), v: f64| (lo - v).max(v - hi).max(0.0);
+                if span_at(t_w).is_some_and(|span| off(span, v_w) > REST_SPEED_TOL_MPS) {
                     self.quiet_since = None;
                     return;
                 }
@@ -285,9 +294,8 @@ impl Estimator {
                     {
                         continue;
                     }
-                    let v_at_m = q.map(|q| self.speed_before_rest(q, rest, self.index_at(t_m), g));
                     let tol = MARK_SPEED_TOL_MPS + MARK_TILT_DRIFT_MPS2 * span_s;
-                    if v_at_m.is_some_and(|v| (v - v_m).abs() > tol) {
+                    if span_at(t_m).is_some_and(|span| off(span, v_m) > tol) {
                         self.quiet_since = None;
                         return;
                     }

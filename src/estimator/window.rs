@@ -222,6 +222,11 @@ impl WindowIntegrator {
         self.v.x.hypot(self.v.y)
     }
 
+    /// Time walked so far, s.
+    pub fn elapsed_s(&self) -> f64 {
+        self.prev.map_or(0.0, |p| (p.t_s - self.t_start_s).abs())
+    }
+
     /// Feed the next sample of the walk (later in time going forward, earlier going backward).
     pub fn push(&mut self, s: &ImuSample) -> Step {
         if !self.active {

@@ -333,13 +333,14 @@ pub fn simulate(sc: &Scenario) -> Drive {
                 imu.push(ImuSample::new(t_rx, f.into(), w.into()));
             }
             if idx.is_multiple_of(wheel_every) {
-                wheels.push(wheel_speeds(
-                    m.truth.t_s,
-                    m.truth.v_mps,
-                    m.kappa,
-                    veh.track_m,
-                    sen,
-                ));
+                // The speed the frame carries is `wheel_delay_s` old (the drive's first
+                // speed before it began).
+                let lag = (sen.wheel_delay_s * sen.imu_rate_hz).round() as usize;
+                let v_read = truth
+                    .len()
+                    .checked_sub(lag + 1)
+                    .map_or(0.0, |i| truth[i].v_mps);
+                wheels.push(wheel_speeds(m.truth.t_s, v_read, m.kappa, veh.track_m, sen));
             }
         }
 

@@ -266,6 +266,9 @@ pub struct Sensors {
     pub wheel_quantum_kmh: f64,
     /// Wheel sensors read 0 below this speed, km/h.
     pub wheel_zero_below_kmh: f64,
+    /// Age of the speed a wheel frame carries when it is sent, s: an ESC derives it
+    /// from tooth periods over a few tens of milliseconds and filters it.
+    pub wheel_delay_s: f64,
     /// Probability that an IMU sample is lost.
     pub imu_drop_prob: f64,
     /// CAN arrival jitter of the IMU sample time, uniform in [min, max], ms.
@@ -285,6 +288,7 @@ impl Default for Sensors {
             gyro_bias_walk_dps_rts: 0.0,
             wheel_quantum_kmh: 0.03125,
             wheel_zero_below_kmh: 1.5,
+            wheel_delay_s: 0.0,
             imu_drop_prob: 0.0,
             imu_jitter_ms: [0.0; 2],
         }
