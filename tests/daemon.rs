@@ -102,6 +102,18 @@ fn config_mistakes_name_the_file_and_field() {
     ));
     assert!(e.contains("short_stop_weight"), "{e}");
     let e = err_of(load_variant(
+        "age",
+        &reference_toml().replace(
+            "max_wheel_speed_age_s = 0.15",
+            "max_wheel_speed_age_s = -0.1",
+        ),
+        None,
+    ));
+    assert!(
+        e.contains("max_wheel_speed_age_s") && e.contains("0..1 s"),
+        "{e}"
+    );
+    let e = err_of(load_variant(
         "half",
         &(reference_toml() + "short_window_share = 1.0\n"),
         None,

@@ -40,6 +40,7 @@ sens() {
     sens "stop-and-go, wheels zero below 3 km/h" stop-and-go sensors.wheel_zero_below_kmh=3.0
     sens "urban, wheel speeds 0.15 s old" urban sensors.wheel_delay_s=0.15
     sens "stop-and-go, wheel speeds 0.15 s old" stop-and-go sensors.wheel_delay_s=0.15
+    sens "urban, wheel speeds at 10 Hz" urban sensors.wheel_rate_hz=10
     sens "urban, 0.2-0.4 deg door shock and an IMU gap at every stop" urban \
         realistic.door_shock_share=1.0 "realistic.door_shock_deg=[0.2, 0.4]" \
         realistic.imu_gap_share=1.0
