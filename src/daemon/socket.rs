@@ -31,6 +31,12 @@ use tokio::time::Instant;
 const HOLD_BACK_S: f64 = 0.02;
 /// Idle timer period.
 const TICK: Duration = Duration::from_millis(10);
+/// A timer that fires this much after it was due found the process not running
+/// (stopped, or not scheduled). The kernel queued the frames meanwhile, but the
+/// runtime may not yet have seen the sockets turn readable: before the timer is
+/// served, frames get up to `RESUME_GRACE` to show up.
+const LATE_TICK: Duration = Duration::from_millis(30);
+const RESUME_GRACE: Duration = Duration::from_millis(20);
 /// Frames read in a row before a due timer goes first: housekeeping (watchdog, status)
 /// still runs under a flood of the input IDs.
 const MAX_FRAMES_BEFORE_TICK: u32 = 1000;
@@ -124,6 +130,8 @@ pub struct LiveBus {
     frames_since_tick: u32,
     /// The timer fired and is served once no frame is waiting.
     tick_due: bool,
+    /// It fired `LATE_TICK` or more after it was due.
+    tick_late: bool,
 }
 
 impl LiveBus {
@@ -146,6 +154,7 @@ impl LiveBus {
             stats,
             frames_since_tick: 0,
             tick_due: false,
+            tick_late: false,
         }
     }
 
@@ -171,6 +180,7 @@ impl LiveBus {
     fn idle_tick(&mut self) -> Received {
         self.frames_since_tick = 0;
         self.tick_due = false;
+        self.tick_late = false;
         let now = self.clock.now_s();
         let steps = self.clock.steps;
         self.count(|s| s.wall_clock_steps = steps);
@@ -265,14 +275,22 @@ impl LiveBus {
                     // The timer fired. Frames that came meanwhile are stamped earlier
                     // than the tick's time and go first, unless a flood of them has
                     // held the timer back long enough.
-                    let item = if self.frames_since_tick < MAX_FRAMES_BEFORE_TICK {
+                    let item = if self.frames_since_tick >= MAX_FRAMES_BEFORE_TICK {
+                        None
+                    } else if self.tick_late {
+                        // Once: after it, the runtime has looked at the sockets.
+                        self.tick_late = false;
+                        tokio::select! {
+                            biased;
+                            item = open.frames.next() => Some(item),
+                            _ = tokio::time::sleep(RESUME_GRACE) => None,
+                        }
+                    } else {
                         tokio::select! {
                             biased;
                             item = open.frames.next() => Some(item),
                             _ = std::future::ready(()) => None,
                         }
-                    } else {
-                        None
                     };
                     match item {
                         Some(item) => {
@@ -287,8 +305,9 @@ impl LiveBus {
                     let item = tokio::select! {
                         biased;
                         item = open.frames.next() => item,
-                        _ = self.tick.tick() => {
+                        due = self.tick.tick() => {
                             self.tick_due = true;
+                            self.tick_late = due.elapsed() >= LATE_TICK;
                             // A process resumed after SIGSTOP (or not scheduled for a
                             // while) can have its timer expire before the runtime has
                             // seen the sockets turn readable: epoll_wait returns EINTR
