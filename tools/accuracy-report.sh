@@ -27,6 +27,8 @@ sens() {
     sens "urban, IMU at 50 Hz" urban sensors.imu_rate_hz=50
     sens "urban, IMU at 200 Hz" urban sensors.imu_rate_hz=200
     sens "urban, accelerometer 500 ug/rtHz" urban sensors.acc_noise_ug_rthz=500
+    sens "urban, accelerometer 1000 ug/rtHz" urban sensors.acc_noise_ug_rthz=1000
+    sens "stop-and-go, accelerometer 1000 ug/rtHz" stop-and-go sensors.acc_noise_ug_rthz=1000
     sens "urban, 5 % of IMU frames lost" urban sensors.imu_drop_prob=0.05
     sens "urban, soft suspension" urban "realistic.pitch_freq_hz=[1.0, 1.1]" \
         "realistic.pitch_damping=[0.15, 0.25]" "realistic.pitch_per_accel_deg=[0.3, 0.45]"

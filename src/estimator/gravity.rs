@@ -5,12 +5,48 @@ use super::attitude;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 impl Estimator {
+    /// One settled sample's specific force (pitch centre) for the gravity filter. The
+    /// filter measures the magnitude of the mean of `GRAVITY_BLOCK_S` of samples, not
+    /// of each sample: noise across gravity lengthens every single sample, by
+    /// (var_x + var_y) / 2g on average, which would read as a larger g. The walk
+    /// subtracts that g, and a window loses the excess over its forward acceleration:
+    /// 0.07 deg on a drive-off at 0.4 m/s^2 with 1000 ug/sqrt(Hz) of noise, or with an
+    /// engine's idle vibration of 0.1 m/s^2. A block also ends at a gap, so that one
+    /// mean never spans two stops (gravity along two body directions).
     pub(super) fn update_gravity(&mut self, t_s: f64, f: &Vector3<f64>) {
+        if self
+            .gravity_block
+            .last_s
+            .is_some_and(|t| t_s - t > GRAVITY_BLOCK_GAP_S)
+        {
+            self.flush_gravity_block();
+        }
+        if let Some(k) = self.gravity.as_mut() {
+            k.learn_noise(f);
+        }
+        let b = &mut self.gravity_block;
+        b.sum += f;
+        b.n += 1;
+        b.last_s = Some(t_s);
+        if b.n as usize >= self.samples_in(GRAVITY_BLOCK_S) {
+            self.flush_gravity_block();
+        }
+    }
+
+    fn flush_gravity_block(&mut self) {
+        let b = std::mem::take(&mut self.gravity_block);
+        let Some(t_s) = b.last_s else {
+            return;
+        };
+        if b.n == 0 {
+            return;
+        }
+        let mean = b.sum / f64::from(b.n);
         let q = self.cfg.gravity_walk_mps2_rts;
         let k = self.gravity.get_or_insert_with(|| {
-            GravityFilter::new(f.norm(), 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
+            GravityFilter::new(mean.norm(), 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
         });
-        k.update(t_s, f, q);
+        k.update(t_s, &mean, q, b.n);
     }
 
     /// Horizontal accelerometer bias the stop filter has seen, body axes, m/s^2 (zero
@@ -75,6 +111,20 @@ pub(super) fn pitch_from(f: &Vector3<f64>) -> Option<f64> {
     attitude::pitch_roll_from_gravity(f).map(|(p, _)| p)
 }
 
+/// Span of settled samples whose mean is one measurement of the gravity filter, s.
+const GRAVITY_BLOCK_S: f64 = 0.25;
+
+/// A gap between settled samples longer than this closes the gravity block, s.
+const GRAVITY_BLOCK_GAP_S: f64 = 0.1;
+
+/// Settled samples summed for the gravity filter's next measurement.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct GravityBlock {
+    sum: Vector3<f64>,
+    n: u32,
+    last_s: Option<f64>,
+}
+
 /// What one stop's mean magnitude leaves unexplained beyond its sample noise, m/s^2.
 const STOP_FLOOR_MPS2: f64 = 0.003;
 
@@ -124,14 +174,24 @@ impl GravityFilter {
         Self::regressor(u).dot(&self.x)
     }
 
-    pub(super) fn update(&mut self, t_s: f64, f: &Vector3<f64>, q: f64) {
+    /// Learn the per-sample variance `r` of the magnitude from one sample `f`,
+    /// against the current state (the state itself learns from block means).
+    pub(super) fn learn_noise(&mut self, f: &Vector3<f64>) {
         let m = f.norm();
-        if m <= 0.0 {
+        if !(m > 0.0) {
+            return;
+        }
+        let y = m - Self::regressor(&(f / m)).dot(&self.x);
+        self.r = (0.995 * self.r + 0.005 * y * y).max(1e-8);
+    }
+
+    /// Update with `f`, the mean of `n` samples of per-sample variance `r`.
+    pub(super) fn update(&mut self, t_s: f64, f: &Vector3<f64>, q: f64, n: u32) {
+        if !(f.norm() > 0.0) || n == 0 {
             return;
         }
         let y = self.innovation(t_s, f, q);
-        self.r = (0.995 * self.r + 0.005 * y * y).max(1e-8);
-        self.correct(f, y, self.r);
+        self.correct(f, y, self.r / f64::from(n));
     }
 
     /// Update with a measurement of nominal variance `r`, (m/s^2)^2, that counts as
@@ -177,6 +237,47 @@ mod tests {
         let p = pitch_deg.to_radians();
         let f = Vector3::new(-g * p.sin(), 0.0, g * p.cos()) + b;
         f * ((f.norm() - miss) / f.norm())
+    }
+
+    /// Deterministic standard normal draws (xorshift64* and Box-Muller).
+    struct Normal(u64);
+
+    impl Normal {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            let x = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11;
+            (x as f64 + 0.5) / (1u64 << 53) as f64
+        }
+
+        fn draw(&mut self) -> f64 {
+            let (u, v) = (self.uniform(), self.uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
+    }
+
+    #[test]
+    fn noise_across_gravity_does_not_lengthen_the_learnt_magnitude() {
+        use crate::estimator::{Estimator, EstimatorConfig};
+        // 0.2 m/s^2 per axis: an idle engine's vibration, or 2000 ug/sqrt(Hz) at 100 Hz.
+        // Each sample's norm is longer than gravity by about (0.2^2 + 0.2^2) / 2g,
+        // 4.1 mm/s^2; the mean of 1000 s of samples is known to 0.2 / sqrt(1e5), 0.6.
+        let (sd, g, pitch) = (0.2, 9.85, 2f64.to_radians());
+        let truth = Vector3::new(-g * pitch.sin(), 0.0, g * pitch.cos());
+        let cfg = EstimatorConfig {
+            gravity_walk_mps2_rts: 1e-6,
+            ..EstimatorConfig::default()
+        };
+        let mut est = Estimator::new(cfg).unwrap();
+        let mut rng = Normal(0x9E37_79B9_7F4A_7C15);
+        for k in 0..100_000 {
+            let noise = Vector3::new(rng.draw(), rng.draw(), rng.draw()) * sd;
+            est.update_gravity(k as f64 * 0.01, &(truth + noise));
+        }
+        let learnt = est.gravity.unwrap().magnitude(&truth.normalize());
+        // Measured: 0.6 mm/s^2 off; fed sample by sample (the old filter), 4.1 mm/s^2.
+        assert!((learnt - g).abs() < 0.0015, "learnt {learnt:.5} for {g}");
     }
 
     #[test]

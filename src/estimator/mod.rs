@@ -66,6 +66,8 @@ pub struct Estimator {
     /// Settled specific-force magnitude, the g of eq. 12-13: measured rather than
     /// nominal so that an accelerometer bias along z cancels.
     gravity: Option<GravityFilter>,
+    /// Settled samples not yet given to `gravity`.
+    gravity_block: gravity::GravityBlock,
     /// Share of the recent settled samples below `rest_swing_gate_mps2` (a running
     /// mean over about 50 samples): under a quarter, the gyro's noise alone exceeds the
     /// gate, and the gravity filter takes every settled sample.
@@ -162,6 +164,7 @@ impl Estimator {
             ),
             sample_dt_s: (NOMINAL_SAMPLE_DT_S, 0),
             gravity: None,
+            gravity_block: Default::default(),
             calm_share: 1.0,
             stop_bias: None,
             fwd: WindowIntegrator::with_capacity(win_cap),
