@@ -142,6 +142,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         derotated_motion_anchor: false,
         rest_swing_gate_mps2: 1e3,
         scale_gyro_gates: false,
+        scale_acc_gates: false,
         velocity_free_slope: false,
         short_window_share: 0.0,
         correct_grade_pitch: false,

@@ -43,6 +43,14 @@ pub struct EstimatorConfig {
     /// `gyro_noise_dps_rthz` fails the stillness and bias gates more and more often:
     /// at five times that noise hardly a sample counts as settled.
     pub scale_gyro_gates: bool,
+    /// The accelerometer noise density `still_acc_std_mps2`, `rest_acc_tol_mps2` and
+    /// `drive_off_speed_mps` hold for, ug/sqrt(Hz): past it, noise alone starts to fail them. An
+    /// accelerometer learnt at rest to be noisier (or an engine vibrating at idle)
+    /// widens them in proportion (`scale_acc_gates`).
+    pub acc_noise_ug_rthz: f64,
+    /// Widen the accelerometer gates with the noise learnt at rest. Off, at three times
+    /// `acc_noise_ug_rthz` no standstill is found.
+    pub scale_acc_gates: bool,
     /// Random walk of the accelerometer bias along gravity (temperature drift), m/s^2
     /// per sqrt(s). Sets how long the standstill gravity magnitude is averaged.
     pub gravity_walk_mps2_rts: f64,
@@ -201,6 +209,8 @@ impl Default for EstimatorConfig {
             bias_gate_dps: 0.1,
             gyro_noise_dps_rthz: 0.01,
             scale_gyro_gates: true,
+            acc_noise_ug_rthz: 500.0,
+            scale_acc_gates: true,
             rest_acc_tol_mps2: 0.1,
             settle_time_s: 3.0,
             drive_off_speed_mps: 0.06,
@@ -323,6 +333,7 @@ impl EstimatorConfig {
         pos("rest_swing_gate_mps2", self.rest_swing_gate_mps2)?;
         pos("bias_gate_dps", self.bias_gate_dps)?;
         pos("gyro_noise_dps_rthz", self.gyro_noise_dps_rthz)?;
+        pos("acc_noise_ug_rthz", self.acc_noise_ug_rthz)?;
         pos("rest_acc_tol_mps2", self.rest_acc_tol_mps2)?;
         pos("settle_time_s", self.settle_time_s)?;
         pos("drive_off_speed_mps", self.drive_off_speed_mps)?;

@@ -89,7 +89,7 @@ impl Estimator {
     pub(super) fn rest_edge(&self, f_rest: &Vector3<f64>, floor: usize) -> usize {
         let avg = self.rest_avg();
         let n = self.hist.len();
-        let tol = self.cfg.rest_acc_tol_mps2;
+        let tol = self.rest_acc_tol_mps2();
         let mut edge = n - 1;
         let mut i = n;
         while i >= floor + avg {
@@ -117,7 +117,7 @@ impl Estimator {
         let n = self.hist.len();
         let bias_y = self.bias_rps.map_or(0.0, |b| b.y);
         let gate = self.bias_gate_rps();
-        let tol = self.cfg.rest_acc_tol_mps2;
+        let tol = self.rest_acc_tol_mps2();
         // Newest index whose mean departs by at most twice the tolerance, then by at most
         // the tolerance (and the body does not pitch).
         let (mut i_twice, mut i_rest) = (None, None);
@@ -196,7 +196,7 @@ impl Estimator {
         }
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let acc_bias = self.acc_bias_mps2();
-        let tol = self.cfg.rest_acc_tol_mps2;
+        let tol = self.rest_acc_tol_mps2();
         // One pass forward from `start`, the attitude carried by the gyro: first the
         // reference, then the trailing mean of `rest_avg` samples against it. Kept are
         // the newest sample whose mean matches within the tolerance, and within twice it.
@@ -369,7 +369,7 @@ impl Estimator {
     ) -> (usize, UnitQuaternion<f64>) {
         let avg = self.rest_avg();
         let knock_quiet = self.samples_in(KNOCK_QUIET_S);
-        let tol = self.cfg.rest_acc_tol_mps2;
+        let tol = self.rest_acc_tol_mps2();
         let lowest = floor.saturating_sub(self.samples_in(2.0));
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, g);

@@ -81,7 +81,8 @@ pub struct Estimator {
     /// spans given in seconds (`samples_in`); intervals in a row that disagree with it.
     sample_dt_s: (f64, u32),
     /// The gyro's noise learnt at rest; the gyro gates grow with it.
-    gyro_noise: stillness::GyroNoise,
+    gyro_noise: stillness::NoiseFloor,
+    acc_noise: stillness::NoiseFloor,
     /// The last stillness window was close enough to the bias to update it.
     bias_window_ok: bool,
     /// A settled block has taught `bias_rps` (or it was restored from a saved state).
@@ -151,7 +152,8 @@ impl Estimator {
             bias_rps: None,
             bias_window_ok: false,
             bias_taught: false,
-            gyro_noise: stillness::GyroNoise::default(),
+            gyro_noise: stillness::NoiseFloor::default(),
+            acc_noise: stillness::NoiseFloor::default(),
             still_mean_acc: Vector3::zeros(),
             imu_moved: false,
             dead_zone_motion: None,
@@ -343,7 +345,7 @@ impl Estimator {
             } else {
                 (0.0, 0.0)
             };
-            let thr = self.cfg.drive_off_speed_mps;
+            let thr = self.drive_off_speed_mps();
             if !wheels_zero || (v >= thr && gain >= thr) {
                 self.imu_moved |= wheels_zero;
                 self.dead_zone_motion = self
@@ -352,7 +354,7 @@ impl Estimator {
                     .filter(|_| wheels_zero);
                 self.end_standstill(s.t_s, emit);
             } else {
-                if quiet && v < MOTION_PAUSE_SHARE * self.cfg.drive_off_speed_mps {
+                if quiet && v < MOTION_PAUSE_SHARE * thr {
                     self.update_standstill(&s, emit);
                 }
                 self.close_stale_block(s.t_s, emit);

@@ -127,7 +127,7 @@ impl Estimator {
         }
         let v = self.advance_motion(&mut m);
         self.dead_zone_motion = Some(m);
-        v < REST_AGAIN_SHARE * self.cfg.drive_off_speed_mps
+        v < REST_AGAIN_SHARE * self.drive_off_speed_mps()
     }
 
     /// Integrate the samples that have become available to `m`.
@@ -211,7 +211,7 @@ impl Estimator {
         let t_to = self.hist.get(to).t_s;
         let from = self.index_at(t_to - self.cfg.still_window_s);
         let (mean, sd) = self.derotated_spread(from, to, &Vector3::zeros());
-        (sd <= self.cfg.still_acc_std_mps2).then_some(mean)
+        (sd <= self.still_acc_std_mps2()).then_some(mean)
     }
 
     /// Time from which a tracker started now integrates: the newest sample it can use.

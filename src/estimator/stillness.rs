@@ -39,13 +39,17 @@ impl Estimator {
             let m = s / kf;
             (q / kf - m.component_mul(&m)).map(|v| v.max(0.0).sqrt())
         };
-        let acc_ok = std_axes(sa, qa).max() <= self.cfg.still_acc_std_mps2;
+        let acc_sd = std_axes(sa, qa);
+        let acc_ok = acc_sd.max() <= self.still_acc_std_mps2();
         let gyro_sd = std_axes(sg, qg);
         if acc_ok && self.wheels_zero_since.is_some() {
             self.gyro_noise.learn(median3(gyro_sd), k);
         }
         let scale = self.gyro_gate_scale();
         let gyro_ok = gyro_sd.max().to_degrees() <= self.cfg.still_gyro_std_dps * scale;
+        if gyro_ok && self.wheels_zero_since.is_some() {
+            self.acc_noise.learn(median3(acc_sd), k);
+        }
         let offset_dps = self.bias_rps.map(|b| (sg / kf - b).norm().to_degrees());
         let mean_ok = offset_dps.is_none_or(|o| o <= self.cfg.still_gyro_dps * scale);
 
@@ -89,6 +93,37 @@ impl Estimator {
             })
     }
 
+    /// How much wider the accelerometer gates (`still_acc_std_mps2`,
+    /// `rest_acc_tol_mps2`, `drive_off_speed_mps`) are than configured: they hold for an accelerometer with up
+    /// to `acc_noise_ug_rthz` of noise, and grow in proportion with the noise learnt
+    /// at rest when it is higher (an engine's vibration at idle counts as noise). Never
+    /// below 1, never above `MAX_GATE_SCALE`.
+    pub(super) fn acc_gate_scale(&self) -> f64 {
+        if !self.cfg.scale_acc_gates {
+            return 1.0;
+        }
+        let nominal = self.cfg.acc_noise_ug_rthz * 1e-6 * STANDARD_GRAVITY_MPS2;
+        self.acc_noise
+            .density_per_rthz(self.sample_dt_s.0)
+            .map_or(1.0, |d| (d / nominal).clamp(1.0, MAX_GATE_SCALE))
+    }
+
+    /// `still_acc_std_mps2` widened for a noisy accelerometer, m/s^2.
+    pub(super) fn still_acc_std_mps2(&self) -> f64 {
+        self.cfg.still_acc_std_mps2 * self.acc_gate_scale()
+    }
+
+    /// `drive_off_speed_mps` widened for a noisy accelerometer, m/s: the speed the IMU
+    /// integrates over a stop walks with the noise.
+    pub(super) fn drive_off_speed_mps(&self) -> f64 {
+        self.cfg.drive_off_speed_mps * self.acc_gate_scale()
+    }
+
+    /// `rest_acc_tol_mps2` widened for a noisy accelerometer, m/s^2.
+    pub(super) fn rest_acc_tol_mps2(&self) -> f64 {
+        self.cfg.rest_acc_tol_mps2 * self.acc_gate_scale()
+    }
+
     /// Eq. 7's alpha per sample at the IMU's rate, made smaller for a noisy gyro so
     /// that the bias keeps the spread it has with the gyro the gates are sized for.
     fn bias_alpha(&self) -> f64 {
@@ -126,27 +161,31 @@ fn median3(v: Vector3<f64>) -> f64 {
     v.x.max(v.y).min(v.x.min(v.y).max(v.z))
 }
 
-/// The gyro's white noise, learnt from the stillness windows while the wheels read
-/// zero and the accelerometer is quiet: a running low quantile of the per-sample
+/// A sensor's white noise, learnt from the stillness windows while the wheels read
+/// zero and the other sensor is quiet: a running low quantile of the per-sample
 /// standard deviation in those windows (the median of the three axes), so that the
 /// body rocking after a stop, a door shock or a load ramping in, which only add to the
-/// spread, do not raise it unless they fill nearly every window.
+/// spread, do not raise it unless they fill nearly every window. One for the gyro
+/// (rad/s) and one for the accelerometer (m/s^2).
 #[derive(Debug, Clone, Copy, Default)]
-pub(super) struct GyroNoise {
-    /// Log of the tracked quantile of the windows' standard deviation, rad/s.
+pub(super) struct NoiseFloor {
+    /// Log of the tracked quantile of the windows' standard deviation (rad/s or m/s^2).
     log_sd: Option<f64>,
     /// Samples per window the quantile was last corrected with.
     window_samples: usize,
 }
 
-/// Widest the gyro gates grow, as a multiple of their configured size.
+/// Standard gravity, m/s^2: the g of a noise density given in ug/sqrt(Hz).
+const STANDARD_GRAVITY_MPS2: f64 = 9.80665;
+
+/// Widest the gyro and accelerometer gates grow, as a multiple of their configured size.
 const MAX_GATE_SCALE: f64 = 10.0;
 
 /// The quantile tracked, and its step in log units per window.
 const NOISE_QUANTILE: f64 = 0.1;
 const NOISE_STEP: f64 = 0.01;
 
-impl GyroNoise {
+impl NoiseFloor {
     pub(super) fn learn(&mut self, sd_rps: f64, samples: usize) {
         if !sd_rps.is_finite() || sd_rps <= 0.0 {
             return;
@@ -166,16 +205,21 @@ impl GyroNoise {
     /// the median of three axes by 0.67 of that, and the 10 % quantile lies 1.28 of
     /// those spreads below the middle.
     pub(super) fn density_dps_rthz(&self, dt_s: f64) -> Option<f64> {
+        self.density_per_rthz(dt_s).map(f64::to_degrees)
+    }
+
+    /// The same in the unit learnt, per sqrt(Hz).
+    pub(super) fn density_per_rthz(&self, dt_s: f64) -> Option<f64> {
         let q = self.log_sd?;
         let k = self.window_samples.max(5) as f64;
         let low = ((k - 1.0) / k).sqrt() * (1.0 - 1.2816 * 0.67 / (2.0 * (k - 1.0)).sqrt());
-        Some((q.exp() / low * dt_s.sqrt()).to_degrees())
+        Some(q.exp() / low * dt_s.sqrt())
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::GyroNoise;
+    use super::NoiseFloor;
 
     /// A small deterministic normal generator (Box-Muller on an LCG).
     fn normals(seed: u64) -> impl FnMut() -> f64 {
@@ -196,7 +240,7 @@ mod tests {
         // spread of 1 deg/s. The median of the three axes keeps the rocking out.
         let sigma = 0.3f64.to_radians();
         let mut n = normals(7);
-        let mut g = GyroNoise::default();
+        let mut g = NoiseFloor::default();
         for w in 0..3000 {
             let rocking = w % 10 < 6;
             let mut sd = [0.0; 3];
@@ -223,7 +267,7 @@ mod tests {
 
     #[test]
     fn nothing_learnt_means_no_noise_and_bad_input_teaches_nothing() {
-        let mut g = GyroNoise::default();
+        let mut g = NoiseFloor::default();
         assert_eq!(g.density_dps_rthz(0.01), None);
         g.learn(f64::NAN, 20);
         g.learn(f64::INFINITY, 20);
