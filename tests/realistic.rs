@@ -88,6 +88,16 @@ fn gentle() -> RealisticSpec {
     }
 }
 
+/// The family with every drive-off brisk, no rolling stop and no stop too short to settle.
+fn brisk() -> RealisticSpec {
+    RealisticSpec {
+        gentle_start_share: 0.0,
+        rolling_stop_share: 0.0,
+        short_stop_share: 0.0,
+        ..RealisticSpec::default()
+    }
+}
+
 #[test]
 fn gentle_drive_offs_in_the_wheel_dead_zone_give_unbiased_windows() {
     let (mut n, mut ok, mut errs) = (0, 0, Vec::new());
@@ -199,14 +209,8 @@ fn gentle_drive_offs_from_stops_too_short_to_settle_give_windows() {
 /// 188 -> 130 windows, 3 of 4 drives with a load change never VALID).
 #[test]
 fn wheel_speeds_a_tenth_of_a_second_old_cost_no_window() {
-    let brisk = RealisticSpec {
-        gentle_start_share: 0.0,
-        rolling_stop_share: 0.0,
-        short_stop_share: 0.0,
-        ..RealisticSpec::default()
-    };
     for seed in [41, 42] {
-        let s = spec(seed, 10, brisk.clone());
+        let s = spec(seed, 10, brisk());
         let count = |delay_s: f64| {
             let s = with_sensors(s.clone(), |x| x.wheel_delay_s = delay_s);
             let ev = drive_events(&simulate(&s.cases()[0].scenario));
@@ -250,12 +254,6 @@ fn wheel_speeds_a_tenth_of_a_second_old_cost_no_window() {
 /// off, none is.
 #[test]
 fn a_noisy_accelerometer_still_finds_its_stops() {
-    let brisk = RealisticSpec {
-        gentle_start_share: 0.0,
-        rolling_stop_share: 0.0,
-        short_stop_share: 0.0,
-        ..RealisticSpec::default()
-    };
     let count = |s: &DriveSpec, cfg: EstimatorConfig| {
         let drive = simulate(&s.cases()[0].scenario);
         let mut est = Estimator::new(cfg).unwrap();
@@ -274,7 +272,7 @@ fn a_noisy_accelerometer_still_finds_its_stops() {
         (stops, windows)
     };
     for seed in [43, 44] {
-        let s = spec(seed, 10, brisk.clone());
+        let s = spec(seed, 10, brisk());
         let (stops, windows) = count(&s, EstimatorConfig::default());
         let noisy = with_sensors(s, |x| x.acc_noise_ug_rthz = 1500.0);
         let (noisy_stops, noisy_windows) = count(&noisy, EstimatorConfig::default());

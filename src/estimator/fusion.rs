@@ -19,9 +19,6 @@ const LOAD_STEP_SD_DEG: f64 = 0.05;
 /// three in a hundred, which a drive of 30 windows then takes for a shift.
 const SHIFT_Z: f64 = 4.0;
 
-/// Standard gravity, m/s^2: the grade's share of it along the road pitches the body.
-const GRAVITY_MPS2: f64 = 9.80665;
-
 /// Accepted windows in a row beyond `shift_deg` on one side of the estimate.
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct ShiftRun {
@@ -255,7 +252,9 @@ impl Estimator {
             self.grade
                 .learn(g.mean_accel_mps2, g.mean_pitch_rad - imu_pitch_rad);
         }
-        self.grade.at_rest_rad(g.slope_rad, GRAVITY_MPS2)
+        // The grade's share of standard gravity along the road pitches the body.
+        self.grade
+            .at_rest_rad(g.slope_rad, super::STANDARD_GRAVITY_MPS2)
     }
 
     pub(super) fn refresh_estimate(&mut self) {

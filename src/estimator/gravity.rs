@@ -10,9 +10,10 @@ impl Estimator {
     /// of each sample: noise across gravity lengthens every single sample, by
     /// (var_x + var_y) / 2g on average, which would read as a larger g. The walk
     /// subtracts that g, and a window loses the excess over its forward acceleration:
-    /// 0.07 deg on a drive-off at 0.4 m/s^2 with 1000 ug/sqrt(Hz) of noise, or with an
-    /// engine's idle vibration of 0.1 m/s^2. A block also ends at a gap, so that one
-    /// mean never spans two stops (gravity along two body directions).
+    /// 0.14 deg on a drive-off at 0.4 m/s^2 with 0.1 m/s^2 of noise per sample (1000
+    /// ug/sqrt(Hz) at 100 Hz, or an engine's vibration at idle). A block also ends at
+    /// a gap, so that one mean never spans two stops (gravity along two body
+    /// directions).
     pub(super) fn update_gravity(&mut self, t_s: f64, f: &Vector3<f64>) {
         if self
             .gravity_block

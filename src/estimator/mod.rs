@@ -132,6 +132,9 @@ const WHEEL_MARKS: usize = 6;
 /// Sample interval assumed until the IMU's own is learnt, s (100 Hz).
 const NOMINAL_SAMPLE_DT_S: f64 = 0.01;
 
+/// Standard gravity, m/s^2 (noise densities in ug/sqrt(Hz), the grade's pull).
+const STANDARD_GRAVITY_MPS2: f64 = 9.80665;
+
 impl Estimator {
     pub fn new(cfg: EstimatorConfig) -> Result<Self, ConfigError> {
         cfg.validate()?;

@@ -94,15 +94,15 @@ impl Estimator {
     }
 
     /// How much wider the accelerometer gates (`still_acc_std_mps2`,
-    /// `rest_acc_tol_mps2`, `drive_off_speed_mps`) are than configured: they hold for an accelerometer with up
-    /// to `acc_noise_ug_rthz` of noise, and grow in proportion with the noise learnt
-    /// at rest when it is higher (an engine's vibration at idle counts as noise). Never
-    /// below 1, never above `MAX_GATE_SCALE`.
+    /// `rest_acc_tol_mps2`, `drive_off_speed_mps`) are than configured: they hold for
+    /// an accelerometer with up to `acc_noise_ug_rthz` of noise, and grow in proportion
+    /// with the noise learnt at rest when it is higher (an engine's vibration at idle
+    /// counts as noise). Never below 1, never above `MAX_GATE_SCALE`.
     pub(super) fn acc_gate_scale(&self) -> f64 {
         if !self.cfg.scale_acc_gates {
             return 1.0;
         }
-        let nominal = self.cfg.acc_noise_ug_rthz * 1e-6 * STANDARD_GRAVITY_MPS2;
+        let nominal = self.cfg.acc_noise_ug_rthz * 1e-6 * super::STANDARD_GRAVITY_MPS2;
         self.acc_noise
             .density_per_rthz(self.sample_dt_s.0)
             .map_or(1.0, |d| (d / nominal).clamp(1.0, MAX_GATE_SCALE))
@@ -174,9 +174,6 @@ pub(super) struct NoiseFloor {
     /// Samples per window the quantile was last corrected with.
     window_samples: usize,
 }
-
-/// Standard gravity, m/s^2: the g of a noise density given in ug/sqrt(Hz).
-const STANDARD_GRAVITY_MPS2: f64 = 9.80665;
 
 /// Widest the gyro and accelerometer gates grow, as a multiple of their configured size.
 const MAX_GATE_SCALE: f64 = 10.0;
