@@ -277,19 +277,19 @@ impl LiveBus {
                     // held the timer back long enough.
                     let item = if self.frames_since_tick >= MAX_FRAMES_BEFORE_TICK {
                         None
-                    } else if self.tick_late {
-                        // Once: after it, the runtime has looked at the sockets.
-                        self.tick_late = false;
-                        tokio::select! {
-                            biased;
-                            item = open.frames.next() => Some(item),
-                            _ = tokio::time::sleep(RESUME_GRACE) => None,
-                        }
                     } else {
+                        // A late timer waits once: after it, the runtime has looked at
+                        // the sockets. An on-time one does not wait at all.
+                        let late = std::mem::take(&mut self.tick_late);
+                        let grace = async move {
+                            if late {
+                                tokio::time::sleep(RESUME_GRACE).await;
+                            }
+                        };
                         tokio::select! {
                             biased;
                             item = open.frames.next() => Some(item),
-                            _ = std::future::ready(()) => None,
+                            _ = grace => None,
                         }
                     };
                     match item {

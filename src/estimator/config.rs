@@ -286,6 +286,16 @@ impl EstimatorConfig {
                 })
             }
         };
+        let within = |field: &'static str,
+                      value: f64,
+                      range: std::ops::RangeInclusive<f64>,
+                      hint: &'static str| {
+            if value.is_finite() && range.contains(&value) {
+                Ok(())
+            } else {
+                Err(ConfigError { field, value, hint })
+            }
+        };
         // Durations size buffers (seconds times the sample rate): bounded above too.
         let secs = |field: &'static str, value: f64, max_s: f64| {
             if value.is_finite() && value > 0.0 && value <= max_s {
@@ -307,15 +317,12 @@ impl EstimatorConfig {
         secs("settle_time_s", self.settle_time_s, 60.0)?;
         secs("load_block_s", self.load_block_s, 60.0)?;
         secs("max_imu_gap_s", self.max_imu_gap_s, 5.0)?;
-        if !(self.max_wheel_speed_age_s.is_finite()
-            && (0.0..=1.0).contains(&self.max_wheel_speed_age_s))
-        {
-            return Err(ConfigError {
-                field: "max_wheel_speed_age_s",
-                value: self.max_wheel_speed_age_s,
-                hint: "choose 0..1 s: how old a wheel speed can be when its frame is sent",
-            });
-        }
+        within(
+            "max_wheel_speed_age_s",
+            self.max_wheel_speed_age_s,
+            0.0..=1.0,
+            "choose 0..1 s: how old a wheel speed can be when its frame is sent",
+        )?;
         if self.zero_speed_time_s > 60.0 {
             return Err(ConfigError {
                 field: "zero_speed_time_s",
@@ -362,15 +369,12 @@ impl EstimatorConfig {
         pos("window_distance_m", self.window_distance_m)?;
         pos("max_chord_deviation_m", self.max_chord_deviation_m)?;
         pos("velocity_free_max_chord_m", self.velocity_free_max_chord_m)?;
-        if !(self.chord_check_extra_m.is_finite()
-            && (0.0..=5.0).contains(&self.chord_check_extra_m))
-        {
-            return Err(ConfigError {
-                field: "chord_check_extra_m",
-                value: self.chord_check_extra_m,
-                hint: "choose 0..5 m",
-            });
-        }
+        within(
+            "chord_check_extra_m",
+            self.chord_check_extra_m,
+            0.0..=5.0,
+            "choose 0..5 m",
+        )?;
         if !(self.short_window_share.is_finite() && (0.0..1.0).contains(&self.short_window_share)) {
             return Err(ConfigError {
                 field: "short_window_share",
