@@ -29,6 +29,12 @@ sens() {
     sens "urban, accelerometer 500 ug/rtHz" urban sensors.acc_noise_ug_rthz=500
     sens "urban, accelerometer 1000 ug/rtHz" urban sensors.acc_noise_ug_rthz=1000
     sens "stop-and-go, accelerometer 1000 ug/rtHz" stop-and-go sensors.acc_noise_ug_rthz=1000
+    sens "urban, INS-grade IMU (30 ug/rtHz, gyro 0.003 deg/s/rtHz)" urban \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005
+    sens "stop-and-go, INS-grade IMU (30 ug/rtHz, gyro 0.003 deg/s/rtHz)" stop-and-go \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005
     sens "urban, 5 % of IMU frames lost" urban sensors.imu_drop_prob=0.05
     sens "urban, soft suspension" urban "realistic.pitch_freq_hz=[1.0, 1.1]" \
         "realistic.pitch_damping=[0.15, 0.25]" "realistic.pitch_per_accel_deg=[0.3, 0.45]"

@@ -132,7 +132,7 @@ impl Estimator {
             max_yaw_rate_rps: c.max_yaw_rate_dps.to_radians(),
             max_lateral_acc_mps2: c.max_lateral_acc_mps2,
             max_chord_deviation_m: c.max_chord_deviation_m,
-            velocity_free: c.velocity_free_slope,
+            velocity_free: c.velocity_free_slope && !self.quiet_accelerometer(),
             velocity_free_max_chord_m: c.velocity_free_max_chord_m,
             short_share: c.short_window_share,
         }

@@ -108,6 +108,16 @@ impl Estimator {
             .map_or(1.0, |d| (d / nominal).clamp(1.0, MAX_GATE_SCALE))
     }
 
+    /// Whether the accelerometer's noise learnt at rest is below
+    /// `chord_below_acc_noise_ug_rthz`: then the window's slope is the chord's. Not
+    /// before the noise is learnt.
+    pub(super) fn quiet_accelerometer(&self) -> bool {
+        let limit = self.cfg.chord_below_acc_noise_ug_rthz * 1e-6 * super::STANDARD_GRAVITY_MPS2;
+        self.acc_noise
+            .density_per_rthz(self.sample_dt_s.0)
+            .is_some_and(|d| d < limit)
+    }
+
     /// `still_acc_std_mps2` widened for a noisy accelerometer, m/s^2.
     pub(super) fn still_acc_std_mps2(&self) -> f64 {
         self.cfg.still_acc_std_mps2 * self.acc_gate_scale()
