@@ -102,20 +102,24 @@ impl Estimator {
         if !self.cfg.scale_acc_gates {
             return 1.0;
         }
-        let nominal = self.cfg.acc_noise_ug_rthz * 1e-6 * super::STANDARD_GRAVITY_MPS2;
+        self.learnt_acc_noise_ug_rthz().map_or(1.0, |d| {
+            (d / self.cfg.acc_noise_ug_rthz).clamp(1.0, MAX_GATE_SCALE)
+        })
+    }
+
+    /// The accelerometer noise learnt at rest, ug/sqrt(Hz); `None` before it is learnt.
+    fn learnt_acc_noise_ug_rthz(&self) -> Option<f64> {
         self.acc_noise
             .density_per_rthz(self.sample_dt_s.0)
-            .map_or(1.0, |d| (d / nominal).clamp(1.0, MAX_GATE_SCALE))
+            .map(|d| d / (1e-6 * super::STANDARD_GRAVITY_MPS2))
     }
 
     /// Whether the accelerometer's noise learnt at rest is below
     /// `chord_below_acc_noise_ug_rthz`: then the window's slope is the chord's. Not
     /// before the noise is learnt.
     pub(super) fn quiet_accelerometer(&self) -> bool {
-        let limit = self.cfg.chord_below_acc_noise_ug_rthz * 1e-6 * super::STANDARD_GRAVITY_MPS2;
-        self.acc_noise
-            .density_per_rthz(self.sample_dt_s.0)
-            .is_some_and(|d| d < limit)
+        self.learnt_acc_noise_ug_rthz()
+            .is_some_and(|d| d < self.cfg.chord_below_acc_noise_ug_rthz)
     }
 
     /// `still_acc_std_mps2` widened for a noisy accelerometer, m/s^2.
