@@ -114,6 +114,15 @@ fn config_mistakes_name_the_file_and_field() {
         "{e}"
     );
     let e = err_of(load_variant(
+        "chord",
+        &(reference_toml() + "chord_below_acc_noise_ug_rthz = -1.0\n"),
+        None,
+    ));
+    assert!(
+        e.contains("chord_below_acc_noise_ug_rthz") && e.contains("0..10000"),
+        "{e}"
+    );
+    let e = err_of(load_variant(
         "half",
         &(reference_toml() + "short_window_share = 1.0\n"),
         None,
