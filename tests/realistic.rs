@@ -1425,3 +1425,54 @@ fn a_quiet_accelerometer_takes_the_chords_slope() {
         "at 300 ug/sqrt(Hz) the slope must stay velocity-free"
     );
 }
+
+/// A stop shorter than the lever-arm fit's tail (half a second past the first settled
+/// sample) is fitted when it ends, and the drive-off is then in the history: force
+/// along x while the body squats, which a least-squares arm reads as an IMU metres
+/// below the pitch centre. Realistic urban seed 13 (5P) and stop-and-go seed 14 (1P)
+/// each have such a stop early; with the drive-off in the fit the learnt arm went
+/// 1.9 and 2.1 m off the simulated [2.1, 0.65, 0.4] m, which tilts every later rest
+/// reference the motion tracker starts from, and urban 13 then lost its load change
+/// to a drive-off the tracker saw at rest. Over the 192 drives of seeds 1-24 of the
+/// four scenarios, 7 went more than 0.3 m off; none does since.
+#[test]
+fn a_short_stops_drive_off_does_not_enter_the_lever_arm_fit() {
+    for (file, seed, load) in [("urban", 13, 1), ("stop-and-go", 14, 0)] {
+        let mut s = DriveSpec::parse(&shipped(file)).unwrap();
+        s.seed = seed;
+        let case: Case = s.cases().remove(load);
+        let drive = simulate(&case.scenario);
+        let truth = case.scenario.vehicle.lever_arm_m;
+        let configured = nalgebra::Vector3::from(EstimatorConfig::default().lever_arm_m);
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        let (mut worst_m, mut next_s, mut learnt) = (0.0f64, 0.0, 0);
+        for input in drive.merged() {
+            let t = match input {
+                Input::Imu(x) => {
+                    est.push_imu(x, &mut |_| {});
+                    x.t_s
+                }
+                Input::Wheels(w) => {
+                    est.push_wheels(w, &mut |_| {});
+                    w.t_s
+                }
+            };
+            if t >= next_s {
+                next_s = t + 2.0;
+                if let Some(fit) = est.state().lever_fit.filter(|f| f.mtm[0] > 0.0) {
+                    let arm = fit.solve(&configured);
+                    learnt += 1;
+                    worst_m = worst_m
+                        .max((arm.x - truth[0]).abs())
+                        .max((arm.z - truth[2]).abs());
+                }
+            }
+        }
+        eprintln!("{file} seed {seed}: learnt arm at most {worst_m:.2} m off");
+        assert!(learnt > 50, "{file} {seed}: the arm was never learnt");
+        assert!(
+            worst_m < 0.3,
+            "{file} seed {seed}: learnt arm {worst_m:.2} m off the vehicle's"
+        );
+    }
+}

@@ -164,12 +164,14 @@ impl Estimator {
     }
 
     /// Add the rocking of one stop to the fit: samples from the rest edge `rest` to
-    /// `FIT_TAIL_S` past the first settled sample `settled`, whose attitude is `q_ref`.
+    /// `FIT_TAIL_S` past the first settled sample `settled`, whose attitude is `q_ref`,
+    /// and no further than the last settled sample `at_rest` allows.
     pub(super) fn learn_lever(
         &mut self,
         q_ref: UnitQuaternion<f64>,
         rest: usize,
         settled: usize,
+        at_rest: usize,
         g: f64,
     ) {
         let prior = Vector3::from(self.cfg.lever_arm_m);
@@ -178,8 +180,16 @@ impl Estimator {
         }
         let n = self.hist.len();
         let t_end = self.hist.get(settled.min(n - 1)).t_s + FIT_TAIL_S;
-        let last = self.index_at(t_end).min(n - 1);
         let h = self.lever_half();
+        // A stop shorter than the tail is fitted when it ends, with the drive-off in
+        // the history: the car pulling away reads as force along x while the body
+        // squats, as a lever arm metres below the pitch centre would. The smoothing
+        // reaches 2 H samples ahead, so the fit stops that far before the last sample
+        // known to be at rest.
+        let last = self
+            .index_at(t_end)
+            .min(n - 1)
+            .min(at_rest.saturating_sub(2 * h));
         if last <= rest + 2 * h + 2 {
             return;
         }

@@ -683,7 +683,8 @@ impl Estimator {
         let (settled, floor) = (self.index_at(st.seg_first_s), self.index_at(st.t_rest_s));
         let (rest, _) = self.rocking_rest_edge(q_ref, settled, floor, g);
         // The rocking after this stop refines the lever arm before the walk uses it.
-        self.learn_lever(q_ref, rest, settled, g);
+        let at_rest = self.index_at(st.seg_last_s);
+        self.learn_lever(q_ref, rest, settled, at_rest, g);
         let (rest, q0) = self.rocking_rest_edge(q_ref, settled, floor, g);
         let Some((q_win, g_win)) = self.window_reference(&st.mean()) else {
             let r = Err(RejectReason::NotStill);
