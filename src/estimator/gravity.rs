@@ -1,7 +1,7 @@
 //! The settled gravity magnitude (the g of eq. 12-13) and pitch from a specific force.
 
+use super::Estimator;
 use super::attitude;
-use super::{Estimator, STANDARD_GRAVITY_MPS2};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 impl Estimator {
@@ -48,18 +48,6 @@ impl Estimator {
             GravityFilter::new(mean.norm(), 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
         });
         k.update(t_s, &mean, q, b.n);
-    }
-
-    /// How far the body pitched between two mean specific forces at rest, rad: the
-    /// change of the longitudinal force over standard gravity. The direction of the
-    /// force would do as well but for an accelerometer bias along z, which lengthens
-    /// the vertical and so scales every pitch read from the direction: 0.3 m/s^2 makes
-    /// a 1 deg load step 0.03 deg short or long. A bias along x drops out of the change
-    /// (the learnt one is taken off for the arcsine's sake).
-    pub(super) fn pitch_step_rad(&self, from: &Vector3<f64>, to: &Vector3<f64>) -> f64 {
-        let bx = self.acc_bias_mps2().x;
-        let pitch = |f: &Vector3<f64>| ((f.x - bx) / STANDARD_GRAVITY_MPS2).clamp(-1.0, 1.0).asin();
-        pitch(to) - pitch(from)
     }
 
     /// Horizontal accelerometer bias the stop filter has seen, body axes, m/s^2 (zero
@@ -291,26 +279,6 @@ mod tests {
         let learnt = est.gravity.unwrap().magnitude(&truth.normalize());
         // Measured: 0.6 mm/s^2 off; fed sample by sample (the old filter), 4.1 mm/s^2.
         assert!((learnt - g).abs() < 0.0015, "learnt {learnt:.5} for {g}");
-    }
-
-    #[test]
-    fn a_load_step_read_from_the_force_is_blind_to_a_vertical_bias() {
-        let est = Estimator::new(crate::estimator::EstimatorConfig::default()).unwrap();
-        let g = STANDARD_GRAVITY_MPS2;
-        // A body on a 6 % grade turning 1 deg nose-up, a bias of 0.3 m/s^2 on z and
-        // 0.2 on x, rolled 1 deg on a crossfall.
-        let bias = Vector3::new(0.2, 0.0, 0.3);
-        let force = |pitch_deg: f64| {
-            let (p, r) = (pitch_deg.to_radians(), 1f64.to_radians());
-            Vector3::new(g * p.sin(), g * p.cos() * r.sin(), g * p.cos() * r.cos()) + bias
-        };
-        let (before, after) = (force(3.4), force(4.4));
-        let step = est.pitch_step_rad(&before, &after).to_degrees();
-        let direction = (pitch_from(&after).unwrap() - pitch_from(&before).unwrap()).to_degrees();
-        // The direction reads the step 3 % short (b_z / g); the longitudinal force
-        // within the arcsine's curvature times the unlearnt x bias.
-        assert!((direction - 1.0).abs() > 0.025, "direction {direction:.4}");
-        assert!((step - 1.0).abs() < 0.002, "step {step:.4}");
     }
 
     #[test]

@@ -507,10 +507,9 @@ impl Estimator {
                 // gyro sees the same turn; a reference taken from a few samples while the
                 // body still swung (its lever-arm motion left in the force) does not.
                 let new_mean = (psum + block) / (pn + block_n) as f64;
-                let old_mean = st.mean();
+                let sf_delta = pitch_from(&new_mean).unwrap_or(bp) - sp;
                 let new_mid = 0.5 * (pt0 + block_last);
                 let reference = *st;
-                let sf_delta = self.pitch_step_rad(&old_mean, &new_mean);
                 let gyro_delta = self.turn_since_reference(&reference, new_mid);
                 let Some(st) = self.standstill.as_mut() else {
                     return;
@@ -535,8 +534,8 @@ impl Estimator {
                 // acceleration, the gyro's turn starts from wherever the swing was. The
                 // two errors are unrelated; their mean halves their variance.
                 let delta = match gyro_delta {
-                    Some(g) if thin_ref => 0.5 * (g + sf_delta),
-                    _ => sf_delta,
+                    Some(g) if thin_ref => 0.5 * (g + new_pitch - sp),
+                    _ => new_pitch - sp,
                 };
                 self.apply_load_change(delta, new_pitch, t_s, emit);
             }
