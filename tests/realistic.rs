@@ -1476,3 +1476,17 @@ fn a_short_stops_drive_off_does_not_enter_the_lever_arm_fit() {
         );
     }
 }
+
+/// Realistic hilly seed 14 (5P): the load ramps in from 1.1 s into a 6.3 s stop, just
+/// after the standstill began and before any sample settled, and a door shock falls in
+/// the ramp. The first quiet samples come as the ramp ends at 4.1 s, and `on_settled`
+/// waits for 3 s of them: the turn the gyro saw was applied only as the car pulled
+/// away, after its drive-off. It is now applied once 1 s of settled samples agree.
+#[test]
+fn a_load_ramping_in_before_anything_settled_is_applied_before_a_drive_off_soon_after() {
+    let mut s = DriveSpec::parse(&shipped("hilly")).unwrap();
+    s.seed = 14;
+    let c = checks(&s, 1);
+    assert_eq!(c.load_changes, 1);
+    assert_eq!(c.load_applied, 1, "{c:?}");
+}

@@ -76,6 +76,10 @@ const CALM_SHARE_MIN: f64 = 0.25;
 /// Time constant of the running share of calm samples the gravity filter looks at, s.
 const CALM_SHARE_TAU_S: f64 = 0.5;
 
+/// Settled samples that stand for the turn of a load ramped in before the stop
+/// settled (see `early_turn`), s.
+const EARLY_TURN_SETTLED_S: f64 = 1.0;
+
 /// A pause this long in the quiet samples ends a load block, s.
 const BLOCK_GAP_S: f64 = 0.1;
 
@@ -132,6 +136,9 @@ pub(super) struct Standstill {
     pub(super) motion_unknown: bool,
     /// The settled reference exists and the baseline and deceleration window were handled.
     pub(super) settled_done: bool,
+    /// The body's turn between the start of the standstill and its settled samples was
+    /// applied as a load change (see `early_turn`).
+    pub(super) turn_applied: bool,
     /// Gyro sum of the current block: it teaches the bias only if the block joins the
     /// segment (the body did not turn), rad/s.
     pub(super) block_gyro_sum: Vector3<f64>,
@@ -359,6 +366,7 @@ impl Estimator {
             motion,
             motion_unknown,
             settled_done: false,
+            turn_applied: false,
             block_gyro_sum: Vector3::zeros(),
             live: LivePitch::default(),
             gap_end_s: f64::NEG_INFINITY,
@@ -495,7 +503,9 @@ impl Estimator {
             st.seg_n += block_n;
             st.seg_last_s = block_last;
             st.pending = None;
+            let joined = *st;
             self.teach_bias_block(&gyro_mean, gyro_n, early);
+            self.early_turn(&joined, t_s, emit);
             return;
         }
         match st.pending.take() {
@@ -565,6 +575,30 @@ impl Estimator {
                 };
                 st.pending = Some((block, block_n, block_t0));
             }
+        }
+    }
+
+    /// A load that ramped in before anything settled: the gyro saw the body turn from
+    /// the start of the standstill to its settled samples. `on_settled` applies that
+    /// turn once `settle_time_s` of them stand, and a drive-off sooner than that came
+    /// first. It is applied here once `EARLY_TURN_SETTLED_S` stand: blocks that agree
+    /// over that span show a body no longer turning (a ramp still going on leaves a
+    /// block behind that the segment does not take). `on_settled` still looks if this
+    /// found nothing.
+    fn early_turn(&mut self, st: &Standstill, t_s: f64, emit: &mut dyn FnMut(Event)) {
+        if !st.moved || st.settled_done || st.turn_applied || st.settled_s() < EARLY_TURN_SETTLED_S
+        {
+            return;
+        }
+        let Some(pitch) = pitch_from(&st.mean()) else {
+            return;
+        };
+        let turn = self.turn_before_settling(st, pitch);
+        if let Some(turn) = turn {
+            if let Some(st) = self.standstill.as_mut() {
+                st.turn_applied = true;
+            }
+            self.apply_load_change(turn, pitch, t_s, emit);
         }
     }
 
@@ -658,6 +692,7 @@ impl Estimator {
             }
             _ => {
                 if st.moved
+                    && !st.turn_applied
                     && let Some(turn) = self.turn_before_settling(&st, pitch)
                 {
                     self.apply_load_change(turn, pitch, t_now, emit);
