@@ -724,8 +724,22 @@ fn realistic_urban_drives_end_inside_the_budget_and_beat_the_baseline() {
 /// Replay a drive through the default estimator: its road-to-body estimate as it was
 /// at each of `times` (the last one at or before it), deg.
 fn estimates_at<const N: usize>(drive: &leveld::sim::Drive, times: [f64; N]) -> [Option<f64>; N] {
-    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
     let mut out = [None; N];
+    replay(drive, |est, t| {
+        let e = est.estimate().map(|e| e.road_to_body_deg);
+        for (o, &at) in out.iter_mut().zip(&times) {
+            if t <= at {
+                *o = e;
+            }
+        }
+    });
+    out
+}
+
+/// Replay a drive through the default estimator, calling `after` with it and the
+/// input's time after each input.
+fn replay(drive: &leveld::sim::Drive, mut after: impl FnMut(&Estimator, f64)) {
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
     for input in drive.merged() {
         let t = match input {
             Input::Imu(x) => {
@@ -737,14 +751,8 @@ fn estimates_at<const N: usize>(drive: &leveld::sim::Drive, times: [f64; N]) -> 
                 w.t_s
             }
         };
-        let e = est.estimate().map(|e| e.road_to_body_deg);
-        for (o, &at) in out.iter_mut().zip(&times) {
-            if t <= at {
-                *o = e;
-            }
-        }
+        after(&est, t);
     }
-    out
 }
 
 /// Mean |estimate - truth| over the second half of a drive (every method has an
@@ -1444,19 +1452,8 @@ fn a_short_stops_drive_off_does_not_enter_the_lever_arm_fit() {
         let drive = simulate(&case.scenario);
         let truth = case.scenario.vehicle.lever_arm_m;
         let configured = nalgebra::Vector3::from(EstimatorConfig::default().lever_arm_m);
-        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
         let (mut worst_m, mut next_s, mut learnt) = (0.0f64, 0.0, 0);
-        for input in drive.merged() {
-            let t = match input {
-                Input::Imu(x) => {
-                    est.push_imu(x, &mut |_| {});
-                    x.t_s
-                }
-                Input::Wheels(w) => {
-                    est.push_wheels(w, &mut |_| {});
-                    w.t_s
-                }
-            };
+        replay(&drive, |est, t| {
             if t >= next_s {
                 next_s = t + 2.0;
                 if let Some(fit) = est.state().lever_fit.filter(|f| f.mtm[0] > 0.0) {
@@ -1467,7 +1464,7 @@ fn a_short_stops_drive_off_does_not_enter_the_lever_arm_fit() {
                         .max((arm.z - truth[2]).abs());
                 }
             }
-        }
+        });
         eprintln!("{file} seed {seed}: learnt arm at most {worst_m:.2} m off");
         assert!(learnt > 50, "{file} {seed}: the arm was never learnt");
         assert!(
