@@ -593,8 +593,7 @@ impl Estimator {
         let Some(pitch) = pitch_from(&st.mean()) else {
             return;
         };
-        let turn = self.turn_before_settling(st, pitch);
-        if let Some(turn) = turn {
+        if let Some(turn) = self.turn_before_settling(st, pitch) {
             if let Some(st) = self.standstill.as_mut() {
                 st.turn_applied = true;
             }
