@@ -1487,3 +1487,26 @@ fn a_load_ramping_in_before_anything_settled_is_applied_before_a_drive_off_soon_
     assert_eq!(c.load_changes, 1);
     assert_eq!(c.load_applied, 1, "{c:?}");
 }
+
+/// A load that starts to ramp in within the first second of a stop keeps every sample
+/// from settling, and a stop of 4-5 s ends with the car pulling away 0.1-1 s after the
+/// ramp. The settled blocks had no reference to follow the ramp from, and the turn was
+/// applied only once the drive-off was seen, after the car moved. The gyro's turn since
+/// the standstill began is now shown while it happens, once the specific force agrees.
+#[test]
+fn a_load_ramping_in_from_the_first_second_of_a_short_stop_shows_before_drive_off() {
+    for (name, seed) in [
+        ("stop-and-go", 3),
+        ("urban", 2),
+        ("urban", 10),
+        ("bumpy", 10),
+    ] {
+        let mut s = DriveSpec::parse(&shipped(name)).unwrap();
+        s.seed = seed;
+        let r = s.realistic.as_mut().expect("a realistic scenario");
+        r.load_change_delay_s = [0.5, 1.0];
+        let c = checks(&s, 1);
+        assert_eq!(c.load_changes, 1, "{name} {seed}");
+        assert_eq!(c.load_applied, 1, "{name} {seed}: {c:?}");
+    }
+}

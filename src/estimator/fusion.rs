@@ -77,6 +77,11 @@ impl Estimator {
         emit: &mut dyn FnMut(Event),
     ) {
         self.baseline_pitch_rad = Some(new_pitch_rad);
+        if let Some(st) = self.standstill.as_mut() {
+            // The turn since the standstill began is now in the estimate.
+            st.begin.active = false;
+            st.begin.closed = true;
+        }
         self.shift_run = ShiftRun::default();
         self.avg.restart_shifted(
             delta_rad.to_degrees(),

@@ -144,6 +144,8 @@ pub(super) struct Standstill {
     pub(super) block_gyro_sum: Vector3<f64>,
     /// The body's attitude now, carried by the gyro from the segment's reference.
     pub(super) live: LivePitch,
+    /// The body's turn since the start of a standstill that had not settled when it began.
+    pub(super) begin: BeginPitch,
     /// Time of the first sample after the latest gap in the IMU data over which the
     /// body's turn is unknown, s.
     pub(super) gap_end_s: f64,
@@ -164,6 +166,31 @@ pub(super) struct LivePitch {
     pub(super) beyond_since_s: Option<f64>,
     /// The offset is shown in the estimate.
     pub(super) active: bool,
+}
+
+/// The body's pitch while stopped, followed by the gyro from the start of a standstill
+/// that nothing settled in: a load that ramps in from the first seconds of a stop keeps
+/// every sample from settling, so `LivePitch` has no reference to follow it from, and
+/// a ramp that ends shortly before drive-off was shown only as the car pulled away.
+/// The turn is shown under the conditions `turn_without_settling` and
+/// `turn_before_settling` apply it by: the stop has lasted `UNSETTLED_LOAD_MIN_S`, and
+/// gyro and specific force agree on at least twice the load-change threshold.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct BeginPitch {
+    /// Attitude at the newest sample, carried from the standstill's start.
+    pub(super) q: Option<UnitQuaternion<f64>>,
+    /// Pitch of the force at the standstill's start (`f_begin`), rad.
+    pub(super) pitch0_rad: f64,
+    /// Smoothed gyro pitch now, rad.
+    pub(super) smooth_rad: Option<f64>,
+    /// Smoothed specific force now, m/s^2.
+    pub(super) f_smooth: Vector3<f64>,
+    pub(super) beyond_since_s: Option<f64>,
+    /// The turn is shown in the estimate.
+    pub(super) active: bool,
+    /// Never again at this standstill: it settled before any turn showed, a load change
+    /// was applied, or a gap hid part of the turn.
+    pub(super) closed: bool,
 }
 
 impl Standstill {
@@ -369,6 +396,7 @@ impl Estimator {
             turn_applied: false,
             block_gyro_sum: Vector3::zeros(),
             live: LivePitch::default(),
+            begin: BeginPitch::default(),
             gap_end_s: f64::NEG_INFINITY,
         });
         let pitch = pitch_from(&f_rest).unwrap_or(0.0);
@@ -806,6 +834,14 @@ impl Estimator {
         let Some(mut st) = self.standstill else {
             return;
         };
+        if self.cfg.live_standstill_pitch {
+            let shown = self.track_begin_pitch(&mut st, t_s);
+            self.standstill = Some(st);
+            if let Some(turn) = shown {
+                self.live_offset_rad = turn;
+                return;
+            }
+        }
         let n = self.hist.len();
         if !self.cfg.live_standstill_pitch || st.seg_n < self.min_settled() || n < 2 {
             self.live_offset_rad = 0.0;
@@ -854,6 +890,67 @@ impl Estimator {
         }
         self.live_offset_rad = if st.live.active { offset } else { 0.0 };
         self.standstill = Some(st);
+    }
+
+    /// Follow the body's turn since the start of a standstill that nothing settled in
+    /// (see `BeginPitch`); returns it, rad, while it is shown.
+    fn track_begin_pitch(&self, st: &mut Standstill, t_s: f64) -> Option<f64> {
+        let n = self.hist.len();
+        let b = &mut st.begin;
+        if b.closed || n < 2 {
+            return None;
+        }
+        if !st.moved
+            || st.settled_done
+            || st.turn_applied
+            || st.gap_end_s > st.t_begin_s
+            || (!b.active && st.seg_n >= self.min_settled())
+        {
+            *b = BeginPitch {
+                closed: true,
+                ..BeginPitch::default()
+            };
+            return None;
+        }
+        let q = match b.q {
+            Some(q) => self.carry(q, n - 2, n - 1),
+            None => {
+                let q0 = attitude_from_gravity(&st.f_begin)?;
+                b.pitch0_rad = pitch_of(&q0);
+                b.f_smooth = st.f_begin;
+                // `f_begin` is the mean of the quarter second before the start.
+                let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
+                self.carry(q0, from, n - 1)
+            }
+        };
+        b.q = Some(q);
+        let dt = (t_s - self.hist.get(n - 2).t_s).max(0.0);
+        let k = dt / (LIVE_PITCH_TAU_S + dt);
+        let pitch = pitch_of(&q);
+        let smooth = b.smooth_rad.map_or(pitch, |p| p + (pitch - p) * k);
+        b.smooth_rad = Some(smooth);
+        b.f_smooth += (self.hist.get(n - 1).acc() - b.f_smooth) * k;
+        let turn = smooth - b.pitch0_rad;
+        let sf = pitch_from(&b.f_smooth).map_or(0.0, |p| p - b.pitch0_rad);
+        let thr = 2.0 * self.cfg.load_change_deg.to_radians();
+        // Once shown, the turn stays until it falls to half the threshold: the force
+        // leaves it as the car pulls away, and the drive-off checks the two again.
+        let beyond = if b.active {
+            turn.abs() > 0.5 * thr
+        } else {
+            t_s - st.t_rest_s >= UNSETTLED_LOAD_MIN_S
+                && turn.abs() > thr
+                && sf.signum() == turn.signum()
+                && turn_matches(sf, turn, turn)
+        };
+        if beyond {
+            let since = *b.beyond_since_s.get_or_insert(t_s);
+            b.active |= t_s - since >= LIVE_PITCH_PERSIST_S;
+        } else {
+            b.beyond_since_s = None;
+            b.active = false;
+        }
+        b.active.then_some(turn)
     }
 
     pub(super) fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
