@@ -79,7 +79,7 @@ impl Estimator {
         self.baseline_pitch_rad = Some(new_pitch_rad);
         if let Some(st) = self.standstill.as_mut() {
             // The turn since the standstill began is now in the estimate.
-            st.begin.active = false;
+            st.begin.shown = Default::default();
             st.begin.closed = true;
         }
         self.shift_run = ShiftRun::default();

@@ -162,10 +162,38 @@ pub(super) struct LivePitch {
     pub(super) seg_pitch_rad: f64,
     /// Smoothed pitch now, rad.
     pub(super) smooth_rad: Option<f64>,
-    /// Since when the smoothed pitch has stood beyond the load-change threshold, s.
-    pub(super) beyond_since_s: Option<f64>,
-    /// The offset is shown in the estimate.
+    /// Whether the offset is shown in the estimate.
+    pub(super) shown: Shown,
+}
+
+/// Whether a turn of the body at rest is shown in the estimate: once it has stood
+/// beyond its threshold for `LIVE_PITCH_PERSIST_S` (a door shock decays in about 0.3 s).
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Shown {
+    /// Since when the turn has stood beyond the threshold, s.
+    beyond_since_s: Option<f64>,
     pub(super) active: bool,
+}
+
+impl Shown {
+    /// Update with whether the turn stands beyond its threshold at `t_s`; returns
+    /// whether it is shown.
+    fn update(&mut self, beyond: bool, t_s: f64) -> bool {
+        if beyond {
+            let since = *self.beyond_since_s.get_or_insert(t_s);
+            self.active |= t_s - since >= LIVE_PITCH_PERSIST_S;
+        } else {
+            *self = Shown::default();
+        }
+        self.active
+    }
+}
+
+/// One step of the smoothing of a live pitch towards `pitch_rad` over `dt_s`.
+fn smooth_pitch(prev_rad: Option<f64>, pitch_rad: f64, dt_s: f64) -> f64 {
+    prev_rad.map_or(pitch_rad, |p| {
+        p + (pitch_rad - p) * dt_s / (LIVE_PITCH_TAU_S + dt_s)
+    })
 }
 
 /// The body's pitch while stopped, followed by the gyro from the start of a standstill
@@ -185,9 +213,8 @@ pub(super) struct BeginPitch {
     pub(super) smooth_rad: Option<f64>,
     /// Smoothed specific force now, m/s^2.
     pub(super) f_smooth: Vector3<f64>,
-    pub(super) beyond_since_s: Option<f64>,
-    /// The turn is shown in the estimate.
-    pub(super) active: bool,
+    /// Whether the turn is shown in the estimate.
+    pub(super) shown: Shown,
     /// Never again at this standstill: it settled before any turn showed, a load change
     /// was applied, or a gap hid part of the turn.
     pub(super) closed: bool,
@@ -872,23 +899,14 @@ impl Estimator {
         st.live.q = Some((q, st.seg_n, st.seg_first_s));
         let pitch = pitch_of(&q);
         let dt = (t_s - self.hist.get(n - 2).t_s).max(0.0);
-        let smooth = match st.live.smooth_rad {
-            Some(p) => p + (pitch - p) * dt / (LIVE_PITCH_TAU_S + dt),
-            None => pitch,
-        };
+        let smooth = smooth_pitch(st.live.smooth_rad, pitch, dt);
         st.live.smooth_rad = Some(smooth);
         let offset = smooth - st.live.seg_pitch_rad;
         let thr = self.cfg.load_change_deg.to_radians();
         // Hysteresis: once shown, the offset stays until it falls to half the threshold.
-        let beyond = offset.abs() > if st.live.active { 0.5 * thr } else { thr };
-        if beyond {
-            let since = *st.live.beyond_since_s.get_or_insert(t_s);
-            st.live.active |= t_s - since >= LIVE_PITCH_PERSIST_S;
-        } else {
-            st.live.beyond_since_s = None;
-            st.live.active = false;
-        }
-        self.live_offset_rad = if st.live.active { offset } else { 0.0 };
+        let beyond = offset.abs() > if st.live.shown.active { 0.5 * thr } else { thr };
+        let shown = st.live.shown.update(beyond, t_s);
+        self.live_offset_rad = if shown { offset } else { 0.0 };
         self.standstill = Some(st);
     }
 
@@ -904,7 +922,7 @@ impl Estimator {
             || st.settled_done
             || st.turn_applied
             || st.gap_end_s > st.t_begin_s
-            || (!b.active && st.seg_n >= self.min_settled())
+            || (!b.shown.active && st.seg_n >= self.min_settled())
         {
             *b = BeginPitch {
                 closed: true,
@@ -925,17 +943,15 @@ impl Estimator {
         };
         b.q = Some(q);
         let dt = (t_s - self.hist.get(n - 2).t_s).max(0.0);
-        let k = dt / (LIVE_PITCH_TAU_S + dt);
-        let pitch = pitch_of(&q);
-        let smooth = b.smooth_rad.map_or(pitch, |p| p + (pitch - p) * k);
+        let smooth = smooth_pitch(b.smooth_rad, pitch_of(&q), dt);
         b.smooth_rad = Some(smooth);
-        b.f_smooth += (self.hist.get(n - 1).acc() - b.f_smooth) * k;
+        b.f_smooth += (self.hist.get(n - 1).acc() - b.f_smooth) * dt / (LIVE_PITCH_TAU_S + dt);
         let turn = smooth - b.pitch0_rad;
         let sf = pitch_from(&b.f_smooth).map_or(0.0, |p| p - b.pitch0_rad);
         let thr = 2.0 * self.cfg.load_change_deg.to_radians();
         // Once shown, the turn stays until it falls to half the threshold: the force
         // leaves it as the car pulls away, and the drive-off checks the two again.
-        let beyond = if b.active {
+        let beyond = if b.shown.active {
             turn.abs() > 0.5 * thr
         } else {
             t_s - st.t_rest_s >= UNSETTLED_LOAD_MIN_S
@@ -943,14 +959,7 @@ impl Estimator {
                 && sf.signum() == turn.signum()
                 && turn_matches(sf, turn, turn)
         };
-        if beyond {
-            let since = *b.beyond_since_s.get_or_insert(t_s);
-            b.active |= t_s - since >= LIVE_PITCH_PERSIST_S;
-        } else {
-            b.beyond_since_s = None;
-            b.active = false;
-        }
-        b.active.then_some(turn)
+        b.shown.update(beyond, t_s).then_some(turn)
     }
 
     pub(super) fn end_standstill(&mut self, t_now: f64, emit: &mut dyn FnMut(Event)) {
@@ -960,7 +969,7 @@ impl Estimator {
             // A short stop: use what settled.
             self.on_settled(t_now, emit);
         }
-        let live_active = st.live.active;
+        let live_active = st.live.shown.active;
         if t_now - st.t_rest_s >= PAIR_MAX_HOLD_S {
             self.open_pair = None;
         }
