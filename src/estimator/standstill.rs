@@ -838,19 +838,35 @@ impl Estimator {
     /// least twice the load-change threshold (twice: the body may still rock a little at
     /// the start).
     fn turn_since_begin(&self, st: &Standstill, to: usize, force_pitch_rad: f64) -> Option<f64> {
-        let q_begin = attitude_from_gravity(&st.f_begin)?;
-        let n = self.hist.len();
-        // `f_begin` is the mean of the quarter second before the start.
-        let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
-        let to = to.min(n - 1);
+        let (q_begin, from) = self.begin_attitude(st)?;
+        let to = to.min(self.hist.len() - 1);
         if to <= from {
             return None;
         }
         let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
         let sf = force_pitch_rad - pitch_of(&q_begin);
+        self.turn_since_begin_agrees(turn, sf).then_some(turn)
+    }
+
+    /// The attitude of the force at the start of the standstill and the history sample
+    /// it stands at (`f_begin` is the mean of the quarter second before the start).
+    fn begin_attitude(&self, st: &Standstill) -> Option<(UnitQuaternion<f64>, usize)> {
+        let q = attitude_from_gravity(&st.f_begin)?;
+        let at = self
+            .index_at(st.t_begin_s - 0.125)
+            .min(self.hist.len().max(1) - 1);
+        Some((q, at))
+    }
+
+    /// The gyro's turn since the start of the standstill and the force's pitch change
+    /// over it (rad) agree on a load: at least twice the load-change threshold (the
+    /// body may still rock a little at the start), the same sign, and within
+    /// `turn_matches`.
+    fn turn_since_begin_agrees(&self, turn_rad: f64, force_step_rad: f64) -> bool {
         let thr = 2.0 * self.cfg.load_change_deg.to_radians();
-        (turn.abs() > thr && sf.signum() == turn.signum() && turn_matches(sf, turn, turn))
-            .then_some(turn)
+        turn_rad.abs() > thr
+            && force_step_rad.signum() == turn_rad.signum()
+            && turn_matches(force_step_rad, turn_rad, turn_rad)
     }
 
     /// Follow the body's pitch at rest with the gyro from the settled reference (see
@@ -914,33 +930,31 @@ impl Estimator {
     /// (see `BeginPitch`); returns it, rad, while it is shown.
     fn track_begin_pitch(&self, st: &mut Standstill, t_s: f64) -> Option<f64> {
         let n = self.hist.len();
-        let b = &mut st.begin;
-        if b.closed || n < 2 {
+        if st.begin.closed || n < 2 {
             return None;
         }
-        if !st.moved
-            || st.settled_done
-            || st.turn_applied
-            || st.gap_end_s > st.t_begin_s
-            || (!b.shown.active && st.seg_n >= self.min_settled())
-        {
-            *b = BeginPitch {
+        // A load change applied at this standstill closes it as well (`apply_load_change`).
+        let open = st.moved
+            && !st.settled_done
+            && st.gap_end_s <= st.t_begin_s
+            && (st.begin.shown.active || st.seg_n < self.min_settled());
+        let q = match (open, st.begin.q) {
+            (false, _) => None,
+            (true, Some(q)) => Some(self.carry(q, n - 2, n - 1)),
+            (true, None) => self.begin_attitude(st).map(|(q0, from)| {
+                st.begin.pitch0_rad = pitch_of(&q0);
+                st.begin.f_smooth = st.f_begin;
+                self.carry(q0, from, n - 1)
+            }),
+        };
+        let Some(q) = q else {
+            st.begin = BeginPitch {
                 closed: true,
                 ..BeginPitch::default()
             };
             return None;
-        }
-        let q = match b.q {
-            Some(q) => self.carry(q, n - 2, n - 1),
-            None => {
-                let q0 = attitude_from_gravity(&st.f_begin)?;
-                b.pitch0_rad = pitch_of(&q0);
-                b.f_smooth = st.f_begin;
-                // `f_begin` is the mean of the quarter second before the start.
-                let from = self.index_at(st.t_begin_s - 0.125).min(n - 1);
-                self.carry(q0, from, n - 1)
-            }
         };
+        let b = &mut st.begin;
         b.q = Some(q);
         let dt = (t_s - self.hist.get(n - 2).t_s).max(0.0);
         let smooth = smooth_pitch(b.smooth_rad, pitch_of(&q), dt);
@@ -948,16 +962,13 @@ impl Estimator {
         b.f_smooth += (self.hist.get(n - 1).acc() - b.f_smooth) * dt / (LIVE_PITCH_TAU_S + dt);
         let turn = smooth - b.pitch0_rad;
         let sf = pitch_from(&b.f_smooth).map_or(0.0, |p| p - b.pitch0_rad);
-        let thr = 2.0 * self.cfg.load_change_deg.to_radians();
-        // Once shown, the turn stays until it falls to half the threshold: the force
-        // leaves it as the car pulls away, and the drive-off checks the two again.
+        // Once shown, the turn stays until it falls below the load-change threshold:
+        // the force leaves it as the car pulls away, and the drive-off checks the two
+        // again.
         let beyond = if b.shown.active {
-            turn.abs() > 0.5 * thr
+            turn.abs() > self.cfg.load_change_deg.to_radians()
         } else {
-            t_s - st.t_rest_s >= UNSETTLED_LOAD_MIN_S
-                && turn.abs() > thr
-                && sf.signum() == turn.signum()
-                && turn_matches(sf, turn, turn)
+            t_s - st.t_rest_s >= UNSETTLED_LOAD_MIN_S && self.turn_since_begin_agrees(turn, sf)
         };
         b.shown.update(beyond, t_s).then_some(turn)
     }
