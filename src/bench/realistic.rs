@@ -62,6 +62,10 @@ pub struct RealisticSpec {
     pub accel_ramp_s: f64,
     pub vibration_mps2: f64,
     pub vibration_long_share: f64,
+    /// Engine vibration at the IMU, at rest and in motion: vertical rms (m/s^2, 0 for
+    /// an electric car) and frequency (Hz).
+    pub idle_vibration_mps2: f64,
+    pub idle_vibration_hz: f64,
     /// Road unevenness (ISO 8608 displacement PSD at 0.1 cycle/m, 1e-6 m^3), and the
     /// body's heave mode that follows it (Hz, damping ratio).
     pub road_roughness_1e6_m3: f64,
@@ -106,6 +110,8 @@ impl Default for RealisticSpec {
             accel_ramp_s: 0.5,
             vibration_mps2: 0.35,
             vibration_long_share: 0.3,
+            idle_vibration_mps2: 0.0,
+            idle_vibration_hz: 25.0,
             road_roughness_1e6_m3: 64.0,
             heave_freq_hz: [1.1, 1.3],
             heave_damping: [0.25, 0.4],
@@ -122,6 +128,17 @@ impl RealisticSpec {
         if !(r.is_finite() && r >= 0.0) {
             let hint = crate::sim::roughness::PSD_HINT;
             anyhow::bail!("realistic.road_roughness_1e6_m3 = {r}: {hint}");
+        }
+        let (a, hz) = (self.idle_vibration_mps2, self.idle_vibration_hz);
+        if !(a.is_finite() && (0.0..=5.0).contains(&a)) {
+            anyhow::bail!(
+                "realistic.idle_vibration_mps2 = {a}: give 0-5 m/s^2 (0 for an electric car; an idling engine shakes a body by about 0.05-0.3)"
+            );
+        }
+        if !(hz.is_finite() && (5.0..=100.0).contains(&hz)) {
+            anyhow::bail!(
+                "realistic.idle_vibration_hz = {hz}: give 5-100 Hz (a four-cylinder engine idling at 750 rpm fires at 25 Hz)"
+            );
         }
         let range = |key: &str, [lo, hi]: [f64; 2], min: f64, max: f64, hint: &str| {
             if lo.is_finite() && hi.is_finite() && min < lo && lo <= hi && hi <= max {
@@ -337,6 +354,8 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         heave_damping: pick(&mut gr, r.heave_damping),
         rough_road_mps2: r.vibration_mps2,
         rough_road_long_share: r.vibration_long_share,
+        idle_vibration_mps2: r.idle_vibration_mps2,
+        idle_vibration_hz: r.idle_vibration_hz,
         imu_mount_deg: [
             sym(&mut g, r.imu_mount_max_deg[0]),
             sym(&mut g, r.imu_mount_max_deg[1]),

@@ -312,6 +312,13 @@ pub fn simulate(sc: &Scenario) -> Drive {
                     f[0] += amp * veh.rough_road_long_share * vib_x;
                 }
             }
+            if veh.idle_vibration_mps2 > 0.0 {
+                // Engine firing order: one tone, sub-micrometre, present at rest too.
+                let ph = std::f64::consts::TAU * veh.idle_vibration_hz * m.truth.t_s + long_phase;
+                let amp = veh.idle_vibration_mps2 * std::f64::consts::SQRT_2;
+                f[2] += amp * ph.sin();
+                f[0] += amp * veh.rough_road_long_share * (ph + 1.1).sin();
+            }
             let mut w = w_b.map(f64::to_degrees) + gyro_bias;
             for i in 0..3 {
                 f[i] += acc_sigma * g.normal();

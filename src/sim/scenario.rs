@@ -205,6 +205,11 @@ pub struct Vehicle {
     pub rough_road_mps2: f64,
     /// Longitudinal structural vibration at the IMU as a share of the vertical one.
     pub rough_road_long_share: f64,
+    /// Engine vibration at the IMU, running at rest as in motion: rms of the vertical
+    /// specific force (m/s^2, 0 for none, as in an electric car) at `idle_vibration_hz`;
+    /// the longitudinal part is `rough_road_long_share` of it.
+    pub idle_vibration_mps2: f64,
+    pub idle_vibration_hz: f64,
     /// IMU mounting misalignment to the body: roll, pitch, yaw, deg. The IMU pitch
     /// adds to what leveld measures (road-to-IMU); calibration takes it out.
     pub imu_mount_deg: [f64; 3],
@@ -228,6 +233,8 @@ impl Default for Vehicle {
             wheelbase_m: 2.7,
             rough_road_mps2: 0.0,
             rough_road_long_share: 0.0,
+            idle_vibration_mps2: 0.0,
+            idle_vibration_hz: 25.0,
             imu_mount_deg: [0.0; 3],
             accel_ramp_s: 0.0,
         }
