@@ -399,7 +399,7 @@ fn wheel_speeds(
     sen: &super::scenario::Sensors,
 ) -> WheelSpeeds {
     let read = |v_mps: f64| {
-        let kmh = v_mps.max(0.0) * 3.6;
+        let kmh = v_mps.max(0.0) * 3.6 * sen.wheel_scale;
         if kmh < sen.wheel_zero_below_kmh || kmh <= 0.0 {
             0.0
         } else if sen.wheel_quantum_kmh > 0.0 {

@@ -273,6 +273,10 @@ pub struct Sensors {
     pub wheel_quantum_kmh: f64,
     /// Wheel sensors read 0 below this speed, km/h.
     pub wheel_zero_below_kmh: f64,
+    /// Speed the wheels report over the true speed: the ESC converts wheel turns with
+    /// a nominal tyre circumference, and a worn tread (about 3 % smaller), the
+    /// pressure or the load make the real one differ.
+    pub wheel_scale: f64,
     /// Age of the speed a wheel frame carries when it is sent, s: an ESC derives it
     /// from tooth periods over a few tens of milliseconds and filters it.
     pub wheel_delay_s: f64,
@@ -295,6 +299,7 @@ impl Default for Sensors {
             gyro_bias_walk_dps_rts: 0.0,
             wheel_quantum_kmh: 0.03125,
             wheel_zero_below_kmh: 1.5,
+            wheel_scale: 1.0,
             wheel_delay_s: 0.0,
             imu_drop_prob: 0.0,
             imu_jitter_ms: [0.0; 2],
