@@ -108,6 +108,9 @@ impl DriveSpec {
         if let Some(r) = &spec.realistic {
             r.check()?;
         }
+        if let Some(s) = &spec.sensors {
+            s.check()?;
+        }
         Ok(spec)
     }
 
@@ -305,6 +308,9 @@ mod tests {
             "realistic.road_roughness_1e6_m3=-1.0",
             "realistic.heave_freq_hz=[0.0, 1.2]",
             "realistic.heave_damping=[0.3, 0.2]",
+            "sensors.imu_rate_hz=-5.0",
+            "sensors.wheel_scale=0.0",
+            "sensors.imu_jitter_ms=[1.5, 0.2]",
         ] {
             assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }

@@ -177,7 +177,7 @@ pub fn drive(
             let table: toml::Table = toml::from_str(&text)
                 .with_context(|| format!("scenario {} is not valid TOML", p.display()))?;
             if table.contains_key("loads") {
-                let mut spec = crate::bench::suite::DriveSpec::parse(&text)
+                let mut spec = crate::bench::suite::DriveSpec::parse_with(&text, &[])
                     .with_context(|| format!("benchmark drive {} is not valid", p.display()))?;
                 if let Some(seed) = seed {
                     spec.seed = seed;
@@ -209,6 +209,7 @@ pub fn drive(
                 sc.road
                     .roughness
                     .check()
+                    .and_then(|()| sc.sensors.check())
                     .with_context(|| format!("scenario {} is not valid", p.display()))?;
                 sc.seed = seed.unwrap_or(1);
                 sc
