@@ -129,17 +129,21 @@ impl RealisticSpec {
             let hint = crate::sim::roughness::PSD_HINT;
             anyhow::bail!("realistic.road_roughness_1e6_m3 = {r}: {hint}");
         }
-        let (a, hz) = (self.idle_vibration_mps2, self.idle_vibration_hz);
-        if !(a.is_finite() && (0.0..=5.0).contains(&a)) {
-            anyhow::bail!(
-                "realistic.idle_vibration_mps2 = {a}: give 0-5 m/s^2 (0 for an electric car; an idling engine shakes a body by about 0.05-0.3)"
-            );
-        }
-        if !(hz.is_finite() && (5.0..=100.0).contains(&hz)) {
-            anyhow::bail!(
-                "realistic.idle_vibration_hz = {hz}: give 5-100 Hz (a four-cylinder engine idling at 750 rpm fires at 25 Hz)"
-            );
-        }
+        use crate::sim::scenario::in_range;
+        in_range(
+            "realistic.idle_vibration_mps2",
+            self.idle_vibration_mps2,
+            0.0,
+            5.0,
+            "give 0-5 m/s^2 (0 for an electric car; an idling engine shakes a body by about 0.05-0.3)",
+        )?;
+        in_range(
+            "realistic.idle_vibration_hz",
+            self.idle_vibration_hz,
+            5.0,
+            100.0,
+            "give 5-100 Hz (a four-cylinder engine idling at 750 rpm fires at 25 Hz)",
+        )?;
         let range = |key: &str, [lo, hi]: [f64; 2], min: f64, max: f64, hint: &str| {
             if lo.is_finite() && hi.is_finite() && min < lo && lo <= hi && hi <= max {
                 Ok(())

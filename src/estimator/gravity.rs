@@ -46,13 +46,14 @@ impl Estimator {
             return;
         }
         let mean = b.sum / f64::from(b.n);
-        self.gravity_block.prev = Some((mean.norm(), b.n));
+        let m = mean.norm();
+        self.gravity_block.prev = Some((m, b.n));
         let q = self.cfg.gravity_walk_mps2_rts;
         let k = self.gravity.get_or_insert_with(|| {
-            GravityFilter::new(mean.norm(), 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
+            GravityFilter::new(m, 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
         });
         if let Some((m_prev, n_prev)) = prev {
-            k.learn_block_noise(mean.norm() - m_prev, n_prev, b.n);
+            k.learn_block_noise(m - m_prev, n_prev, b.n);
         }
         k.update(t_s, &mean, q, b.n);
     }
@@ -76,7 +77,7 @@ impl Estimator {
         if m <= 0.0 || n == 0 || !m.is_finite() {
             return;
         }
-        // The per-sample spread the gravity filter has learnt, averaged over the stop,
+        // The noise per sample the gravity filter has learnt, averaged over the stop,
         // and a floor for what averaging does not remove (the rest of the rocking, a
         // door shock, the lever-arm model).
         let r_sample = self.gravity.map_or(1e-3, |g| g.noise());
@@ -155,8 +156,8 @@ const STOP_BIAS_PRIOR_MPS2: f64 = 0.2;
 /// misses the bias term by up to |b| sin(pitch), 4 mm/s^2 for 0.05 m/s^2 at 5 deg:
 /// 0.25 deg of slope over a 2 s window. So the state is (c, b_x, b_y), each a random
 /// walk of `gravity_walk_mps2_rts` (the bias drifts with temperature); each block of
-/// settled samples measures the magnitude, with a noise learnt from how far
-/// consecutive blocks differ.
+/// settled samples measures the magnitude, with a noise learnt from the samples'
+/// spread and from how far consecutive blocks differ (`GravityFilter::noise`).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct GravityFilter {
     pub(super) x: Vector3<f64>,

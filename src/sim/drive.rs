@@ -313,7 +313,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
                 }
             }
             if veh.idle_vibration_mps2 > 0.0 {
-                // Engine firing order: one tone, sub-micrometre, present at rest too.
+                // The engine's firing frequency: one tone, sub-micrometre, at rest too.
                 let ph = std::f64::consts::TAU * veh.idle_vibration_hz * m.truth.t_s + long_phase;
                 let amp = veh.idle_vibration_mps2 * std::f64::consts::SQRT_2;
                 f[2] += amp * ph.sin();

@@ -307,123 +307,56 @@ impl Default for Sensors {
     }
 }
 
+/// `Ok` when `v` is finite and within `lo..=hi`; else an error naming `key`, its value
+/// and `hint`.
+pub(crate) fn in_range(key: &str, v: f64, lo: f64, hi: f64, hint: &str) -> anyhow::Result<()> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(anyhow::anyhow!("{key} = {v}: {hint}"))
+    }
+}
+
 impl Sensors {
     /// Reject settings the simulator cannot run; the error names the key and its range.
     pub fn check(&self) -> anyhow::Result<()> {
-        let within = |key: &str, v: f64, lo: f64, hi: f64, hint: &str| {
-            if v.is_finite() && (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(anyhow::anyhow!("sensors.{key} = {v}: {hint}"))
-            }
-        };
-        within(
-            "imu_rate_hz",
-            self.imu_rate_hz,
-            10.0,
-            2000.0,
-            "give 10-2000 Hz",
-        )?;
-        within(
-            "wheel_rate_hz",
-            self.wheel_rate_hz,
-            1.0,
-            self.imu_rate_hz,
-            "give 1 Hz up to the IMU's rate",
-        )?;
-        within(
-            "acc_noise_ug_rthz",
-            self.acc_noise_ug_rthz,
-            0.0,
-            1e5,
-            "give 0 or more",
-        )?;
-        within(
-            "gyro_noise_dps_rthz",
-            self.gyro_noise_dps_rthz,
-            0.0,
-            100.0,
-            "give 0 or more",
-        )?;
-        within(
-            "acc_bias_walk_mps2_rts",
-            self.acc_bias_walk_mps2_rts,
-            0.0,
-            10.0,
-            "give 0 or more",
-        )?;
-        within(
-            "gyro_bias_walk_dps_rts",
-            self.gyro_bias_walk_dps_rts,
-            0.0,
-            100.0,
-            "give 0 or more",
-        )?;
-        for (axis, (a, w)) in self
-            .acc_bias_mps2
-            .iter()
-            .zip(self.gyro_bias_dps)
-            .enumerate()
-        {
-            within(
-                &format!("acc_bias_mps2[{axis}]"),
-                *a,
+        let [j0, j1] = self.imu_jitter_ms;
+        #[rustfmt::skip]
+        let checks = [
+            ("imu_rate_hz", self.imu_rate_hz, 10.0, 2000.0, "give 10-2000 Hz"),
+            ("wheel_rate_hz", self.wheel_rate_hz, 1.0, self.imu_rate_hz, "give 1 Hz up to the IMU's rate"),
+            ("acc_noise_ug_rthz", self.acc_noise_ug_rthz, 0.0, 1e5, "give 0-100000"),
+            ("gyro_noise_dps_rthz", self.gyro_noise_dps_rthz, 0.0, 100.0, "give 0-100"),
+            ("acc_bias_walk_mps2_rts", self.acc_bias_walk_mps2_rts, 0.0, 10.0, "give 0-10"),
+            ("gyro_bias_walk_dps_rts", self.gyro_bias_walk_dps_rts, 0.0, 100.0, "give 0-100"),
+            ("wheel_quantum_kmh", self.wheel_quantum_kmh, 0.0, 10.0, "give 0-10 km/h"),
+            ("wheel_zero_below_kmh", self.wheel_zero_below_kmh, 0.0, 30.0, "give 0-30 km/h"),
+            ("wheel_scale", self.wheel_scale, 0.5, 2.0, "give 0.5-2 (a worn tread reads about 1.03)"),
+            ("wheel_delay_s", self.wheel_delay_s, 0.0, 1.0, "give 0-1 s"),
+            ("imu_drop_prob", self.imu_drop_prob, 0.0, 0.99, "give 0-0.99"),
+            ("imu_jitter_ms[0]", j0, 0.0, 100.0, "give [min, max] within 0-100 ms"),
+            ("imu_jitter_ms[1]", j1, j0, 100.0, "give [min, max] within 0-100 ms"),
+        ];
+        for (key, v, lo, hi, hint) in checks {
+            in_range(&format!("sensors.{key}"), v, lo, hi, hint)?;
+        }
+        for axis in 0..3 {
+            let (a, w) = (self.acc_bias_mps2[axis], self.gyro_bias_dps[axis]);
+            in_range(
+                &format!("sensors.acc_bias_mps2[{axis}]"),
+                a,
                 -50.0,
                 50.0,
                 "give -50..50 m/s^2",
             )?;
-            within(
-                &format!("gyro_bias_dps[{axis}]"),
+            in_range(
+                &format!("sensors.gyro_bias_dps[{axis}]"),
                 w,
                 -500.0,
                 500.0,
                 "give -500..500 deg/s",
             )?;
         }
-        within(
-            "wheel_quantum_kmh",
-            self.wheel_quantum_kmh,
-            0.0,
-            10.0,
-            "give 0-10 km/h",
-        )?;
-        within(
-            "wheel_zero_below_kmh",
-            self.wheel_zero_below_kmh,
-            0.0,
-            30.0,
-            "give 0-30 km/h",
-        )?;
-        within(
-            "wheel_scale",
-            self.wheel_scale,
-            0.5,
-            2.0,
-            "give 0.5-2 (a worn tread reads about 1.03)",
-        )?;
-        within("wheel_delay_s", self.wheel_delay_s, 0.0, 1.0, "give 0-1 s")?;
-        within(
-            "imu_drop_prob",
-            self.imu_drop_prob,
-            0.0,
-            0.99,
-            "give 0-0.99",
-        )?;
-        let [j0, j1] = self.imu_jitter_ms;
-        within(
-            "imu_jitter_ms[0]",
-            j0,
-            0.0,
-            100.0,
-            "give [min, max] within 0-100 ms",
-        )?;
-        within(
-            "imu_jitter_ms[1]",
-            j1,
-            j0,
-            100.0,
-            "give [min, max] within 0-100 ms",
-        )?;
         Ok(())
     }
 
