@@ -311,6 +311,8 @@ mod tests {
             "sensors.imu_rate_hz=-5.0",
             "sensors.wheel_scale=0.0",
             "sensors.imu_jitter_ms=[1.5, 0.2]",
+            "realistic.idle_vibration_mps2=-0.1",
+            "realistic.idle_vibration_hz=1.0",
         ] {
             assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }
