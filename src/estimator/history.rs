@@ -310,19 +310,36 @@ impl Estimator {
         early: usize,
         g: f64,
     ) -> (f64, f64) {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        self.walk_back_from_rest(q_rest, rest, early.min(late), g, |j, s| {
+            if j <= late {
+                (lo, hi) = (lo.min(s), hi.max(s));
+            }
+        });
+        (lo, hi)
+    }
+
+    /// Integrate the accelerometer backwards from history sample `rest`, where the car
+    /// is taken to be at rest with attitude `q_rest`, down to sample `stop`, with the
+    /// gyro-carried attitude; `visit` gets each sample's index and the forward speed
+    /// there (m/s, along the heading at rest).
+    pub(super) fn walk_back_from_rest(
+        &self,
+        q_rest: UnitQuaternion<f64>,
+        rest: usize,
+        stop: usize,
+        g: f64,
+        mut visit: impl FnMut(usize, f64),
+    ) {
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let up = Vector3::new(0.0, 0.0, g);
         let heading = q_rest * Vector3::x();
         let along = |v: &Vector3<f64>| v.x * heading.x + v.y * heading.y;
         let (mut q, mut v) = (q_rest, Vector3::zeros());
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         let mut j = rest;
         loop {
-            if j <= late {
-                let s = along(&v);
-                (lo, hi) = (lo.min(s), hi.max(s));
-            }
-            if j <= early.min(late) {
+            visit(j, along(&v));
+            if j <= stop {
                 break;
             }
             let (a, b) = (self.hist.get(j - 1), self.hist.get(j));
@@ -334,7 +351,6 @@ impl Estimator {
             q = q_prev;
             j -= 1;
         }
-        (lo, hi)
     }
 
     /// Index of the first history sample at or after `t`.
