@@ -361,6 +361,10 @@ fn assert_rolling_stops_give_nothing(seeds: &[u64], load: usize, dead_zone_kmh: 
         rolling_stop_share: 1.0,
         ..gentle()
     };
+    assert_stops_give_nothing(r, seeds, load, dead_zone_kmh);
+}
+
+fn assert_stops_give_nothing(r: RealisticSpec, seeds: &[u64], load: usize, dead_zone_kmh: f64) {
     for &seed in seeds {
         let s = with_dead_zone(spec(seed, 10, r.clone()), dead_zone_kmh);
         let c = checks(&s, load);
@@ -372,6 +376,23 @@ fn assert_rolling_stops_give_nothing(seeds: &[u64], load: usize, dead_zone_kmh: 
 #[test]
 fn rolling_stops_give_no_window_and_no_load_change() {
     assert_rolling_stops_give_nothing(&[21, 22], 1, 1.8);
+}
+
+/// A rolling stop that pulls away at 0.15-0.3 m/s^2 spends 1-3 s in the wheels' dead
+/// zone with a force as steady as at rest. Its speed left at the "rest" edge and the
+/// pull-away its "gravity" holds make up for each other at any single wheel reading
+/// 1.5-2.5 s back, and such stops were taken for standstills, with deceleration
+/// windows 0.2-0.95 deg off (57 of 360 rolling stops over seeds 1-40 of this drive gave
+/// an output, 2 once the drift is checked); over all the readings the pull-away shows
+/// as a drift.
+#[test]
+fn rolling_stops_that_pull_away_very_gently_give_no_window() {
+    let r = RealisticSpec {
+        rolling_stop_share: 1.0,
+        gentle_accel_mps2: [0.15, 0.3],
+        ..gentle()
+    };
+    assert_stops_give_nothing(r, &[1, 2, 4], 0, 1.8);
 }
 
 #[test]

@@ -128,7 +128,7 @@ const MAX_RATE_HZ: f64 = 200.0;
 /// Period and number of the wheel readings kept for the rest check (`wheel_marks`):
 /// they reach 3 s back, s.
 const WHEEL_MARK_EVERY_S: f64 = 0.5;
-const WHEEL_MARKS: usize = 6;
+pub(super) const WHEEL_MARKS: usize = 6;
 /// Sample interval assumed until the IMU's own is learnt, s (100 Hz).
 const NOMINAL_SAMPLE_DT_S: f64 = 0.01;
 
