@@ -52,6 +52,10 @@ sens() {
     sens "urban, 0.2-0.4 deg door shock and an IMU gap at every stop" urban \
         realistic.door_shock_share=1.0 "realistic.door_shock_deg=[0.2, 0.4]" \
         realistic.imu_gap_share=1.0
+    sens "urban, drive-offs and rolling stops' pull-aways at 0.15-0.3 m/s^2" urban \
+        "realistic.gentle_accel_mps2=[0.15, 0.3]"
+    sens "stop-and-go, drive-offs and rolling stops' pull-aways at 0.15-0.3 m/s^2" stop-and-go \
+        "realistic.gentle_accel_mps2=[0.15, 0.3]"
     sens "urban, engine idling (0.2 m/s^2 rms at 25 Hz)" urban realistic.idle_vibration_mps2=0.2
     sens "stop-and-go, engine idling (0.2 m/s^2 rms at 25 Hz)" stop-and-go \
         realistic.idle_vibration_mps2=0.2
