@@ -69,6 +69,9 @@ pub struct RealisticSpec {
     /// Road unevenness (ISO 8608 displacement PSD at 0.1 cycle/m, 1e-6 m^3), and the
     /// body's heave mode that follows it (Hz, damping ratio).
     pub road_roughness_1e6_m3: f64,
+    /// Cross slope of the lane, percent, positive falling to the right (the right lane of
+    /// a crowned road, 1.5-2.5 % on most; 0, flat, by default).
+    pub cross_slope_pct: f64,
     pub heave_freq_hz: [f64; 2],
     pub heave_damping: [f64; 2],
     /// Sensors: largest |bias| per axis (accelerometer m/s^2, gyro deg/s).
@@ -113,6 +116,7 @@ impl Default for RealisticSpec {
             idle_vibration_mps2: 0.0,
             idle_vibration_hz: 25.0,
             road_roughness_1e6_m3: 64.0,
+            cross_slope_pct: 0.0,
             heave_freq_hz: [1.1, 1.3],
             heave_damping: [0.25, 0.4],
             acc_bias_max_mps2: 0.3,
@@ -136,6 +140,13 @@ impl RealisticSpec {
             0.0,
             5.0,
             "give 0-5 m/s^2 (0 for an electric car; an idling engine shakes a body by about 0.05-0.3)",
+        )?;
+        in_range(
+            "realistic.cross_slope_pct",
+            self.cross_slope_pct,
+            -10.0,
+            10.0,
+            "give -10..10 % (a crowned road's lanes fall 1.5-2.5 % to the side)",
         )?;
         in_range(
             "realistic.idle_vibration_hz",
@@ -409,6 +420,7 @@ fn hilly_road(spec: &DriveSpec, r: &RealisticSpec, g: &mut Gauss, length_m: f64)
         curves: Vec::new(),
         curve_ramp_m: 0.0,
         roughness: Default::default(),
+        cross_slope_pct: r.cross_slope_pct,
     }
 }
 

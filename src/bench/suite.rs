@@ -313,6 +313,7 @@ mod tests {
             "sensors.imu_jitter_ms=[1.5, 0.2]",
             "realistic.idle_vibration_mps2=-0.1",
             "realistic.idle_vibration_hz=1.0",
+            "realistic.cross_slope_pct=30.0",
         ] {
             assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }

@@ -175,6 +175,8 @@ pub fn simulate(sc: &Scenario) -> Drive {
         0.0
     };
     let mut acc_bias = Vector3::from(sen.acc_bias_mps2);
+    // Falling to the right rolls the body right side down: left side up, +x rotation.
+    let cross = (sc.road.cross_slope_pct / 100.0).atan();
     let [mr, mp, my] = veh.imu_mount_deg.map(f64::to_radians);
     // Body-to-IMU: the IMU frame is the body frame turned by yaw, then pitch, then roll.
     let body_to_imu = (UnitQuaternion::from_axis_angle(&Vector3::z_axis(), my)
@@ -223,7 +225,8 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let (rho, heave_dd) = ride.step(sf, sr);
         let pitch = gam + load + beta + shock + rho;
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
-            * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch);
+            * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch)
+            * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), cross);
         // Acceleration of the midpoint in the vertical plane of the road: tangential plus
         // centripetal of each contact point, averaged.
         let mut along = 0.0;
@@ -488,5 +491,47 @@ mod tests {
         assert!((rest_pitch(-10.0, true) + 0.244).abs() < 0.005);
         assert!(rest_pitch(10.0, false).abs() < 1e-6);
         assert!(rest_pitch(0.0, true).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_lane_falling_to_the_right_rolls_the_body_and_a_yawed_imu_sees_it_as_pitch() {
+        use crate::sim::scenario::{Road, Scenario, Sensors, Vehicle};
+        // At rest on a level road with a 2.5 % cross slope: (pitch, roll) from gravity.
+        let at_rest = |yaw_deg: f64| {
+            let sc = Scenario {
+                speed: SpeedProfile::default().hold(3.0),
+                road: Road {
+                    cross_slope_pct: 2.5,
+                    ..Road::constant(0.0)
+                },
+                load_pitch_deg: 0.0,
+                load_changes: Vec::new(),
+                vehicle: Vehicle {
+                    imu_mount_deg: [0.0, 0.0, yaw_deg],
+                    ..Vehicle::default()
+                },
+                sensors: Sensors::ideal(),
+                shocks: Vec::new(),
+                imu_gaps: Vec::new(),
+                seed: 1,
+            };
+            let d = super::simulate(&sc);
+            let f = d.imu[d.imu.len() / 2].acc_mps2;
+            let (pitch, roll) =
+                crate::estimator::attitude::pitch_roll_from_gravity(&f.into()).unwrap();
+            (pitch.to_degrees(), roll.to_degrees())
+        };
+        let camber_deg = 0.025f64.atan().to_degrees();
+        // Right side down: the IMU's left (y) axis points up the slope.
+        let (p0, r0) = at_rest(0.0);
+        assert!(
+            p0.abs() < 1e-6 && (r0 - camber_deg).abs() < 1e-6,
+            "{p0} {r0}"
+        );
+        // Yawed 1.5 deg to the left, the IMU's x axis takes a share of the roll as pitch
+        // the load does not have: yaw x cross slope, 0.037 deg.
+        let (p1, _) = at_rest(1.5);
+        let share = 1.5f64.to_radians().sin() * camber_deg;
+        assert!((p1 - share).abs() < 1e-3, "{p1} against {share}");
     }
 }

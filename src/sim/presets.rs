@@ -50,6 +50,7 @@ pub fn road_around_stops(stops: &[f64], grades_pct: &[f64]) -> Road {
         curves: Vec::new(),
         curve_ramp_m: 0.0,
         roughness: Default::default(),
+        cross_slope_pct: 0.0,
     }
 }
 

@@ -57,6 +57,10 @@ pub struct Road {
     /// Unevenness on top of the grade, felt through the suspension (none by default).
     #[serde(default)]
     pub roughness: super::roughness::Roughness,
+    /// Cross slope of the lane, percent, positive falling to the right (the right lane
+    /// of a crowned road): the body stands rolled by it.
+    #[serde(default)]
+    pub cross_slope_pct: f64,
 }
 
 impl Road {
@@ -66,6 +70,7 @@ impl Road {
             curves: Vec::new(),
             curve_ramp_m: 0.0,
             roughness: Default::default(),
+            cross_slope_pct: 0.0,
         }
     }
 
