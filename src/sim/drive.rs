@@ -464,27 +464,36 @@ mod tests {
         }
     }
 
+    /// A car standing `hold_s` on `road`, with ideal sensors.
+    fn at_rest(
+        hold_s: f64,
+        road: crate::sim::scenario::Road,
+        vehicle: crate::sim::scenario::Vehicle,
+    ) -> super::Drive {
+        super::simulate(&crate::sim::scenario::Scenario {
+            speed: SpeedProfile::default().hold(hold_s),
+            road,
+            load_pitch_deg: 0.0,
+            load_changes: Vec::new(),
+            vehicle,
+            sensors: crate::sim::scenario::Sensors::ideal(),
+            shocks: Vec::new(),
+            imu_gaps: Vec::new(),
+            seed: 1,
+        })
+    }
+
     #[test]
     fn a_body_at_rest_on_a_grade_squats_as_if_it_pulled_away_at_g_sin_grade() {
-        use crate::sim::scenario::{Road, Scenario, Sensors, Vehicle};
+        use crate::sim::scenario::{Road, Vehicle};
         let rest_pitch = |grade_pct: f64, from_grade: bool| {
-            let sc = Scenario {
-                speed: SpeedProfile::default().hold(6.0),
-                road: Road::constant(grade_pct.atan2(100.0).to_degrees()),
-                load_pitch_deg: 0.0,
-                load_changes: Vec::new(),
-                vehicle: Vehicle {
-                    pitch_per_accel_deg: 0.25,
-                    pitch_from_grade: from_grade,
-                    ..Vehicle::default()
-                },
-                sensors: Sensors::ideal(),
-                shocks: Vec::new(),
-                imu_gaps: Vec::new(),
-                seed: 1,
+            let vehicle = Vehicle {
+                pitch_per_accel_deg: 0.25,
+                pitch_from_grade: from_grade,
+                ..Vehicle::default()
             };
-            let d = super::simulate(&sc);
-            d.truth_at(5.0).suspension_deg
+            let road = Road::constant(grade_pct.atan2(100.0).to_degrees());
+            at_rest(6.0, road, vehicle).truth_at(5.0).suspension_deg
         };
         // 0.25 deg per m/s^2 times g sin(atan 0.1) = 0.976 m/s^2, nose up facing uphill.
         assert!((rest_pitch(10.0, true) - 0.244).abs() < 0.005);
@@ -495,27 +504,18 @@ mod tests {
 
     #[test]
     fn a_lane_falling_to_the_right_rolls_the_body_and_a_yawed_imu_sees_it_as_pitch() {
-        use crate::sim::scenario::{Road, Scenario, Sensors, Vehicle};
+        use crate::sim::scenario::{Road, Vehicle};
         // At rest on a level road with a 2.5 % cross slope: (pitch, roll) from gravity.
-        let at_rest = |yaw_deg: f64| {
-            let sc = Scenario {
-                speed: SpeedProfile::default().hold(3.0),
-                road: Road {
-                    cross_slope_pct: 2.5,
-                    ..Road::constant(0.0)
-                },
-                load_pitch_deg: 0.0,
-                load_changes: Vec::new(),
-                vehicle: Vehicle {
-                    imu_mount_deg: [0.0, 0.0, yaw_deg],
-                    ..Vehicle::default()
-                },
-                sensors: Sensors::ideal(),
-                shocks: Vec::new(),
-                imu_gaps: Vec::new(),
-                seed: 1,
+        let rest_attitude = |yaw_deg: f64| {
+            let road = Road {
+                cross_slope_pct: 2.5,
+                ..Road::constant(0.0)
             };
-            let d = super::simulate(&sc);
+            let vehicle = Vehicle {
+                imu_mount_deg: [0.0, 0.0, yaw_deg],
+                ..Vehicle::default()
+            };
+            let d = at_rest(3.0, road, vehicle);
             let f = d.imu[d.imu.len() / 2].acc_mps2;
             let (pitch, roll) =
                 crate::estimator::attitude::pitch_roll_from_gravity(&f.into()).unwrap();
@@ -523,14 +523,14 @@ mod tests {
         };
         let camber_deg = 0.025f64.atan().to_degrees();
         // Right side down: the IMU's left (y) axis points up the slope.
-        let (p0, r0) = at_rest(0.0);
+        let (p0, r0) = rest_attitude(0.0);
         assert!(
             p0.abs() < 1e-6 && (r0 - camber_deg).abs() < 1e-6,
             "{p0} {r0}"
         );
         // Yawed 1.5 deg to the left, the IMU's x axis takes a share of the roll as pitch
         // the load does not have: yaw x cross slope, 0.037 deg.
-        let (p1, _) = at_rest(1.5);
+        let (p1, _) = rest_attitude(1.5);
         let share = 1.5f64.to_radians().sin() * camber_deg;
         assert!((p1 - share).abs() < 1e-3, "{p1} against {share}");
     }
