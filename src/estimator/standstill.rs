@@ -37,8 +37,8 @@ const MARK_TILT_DRIFT_MPS2: f64 = 0.03;
 /// A rolling stop that pulls away gently in the wheels' dead zone has its acceleration
 /// in the "gravity" it is integrated with, and drifts by it. Over 1156 stops that
 /// reached rest (8 seeds of realistic urban and stop-and-go, with their drive-offs and
-/// with drive-offs of 0.15-0.3 m/s^2) the drift was -0.073..+0.092 m/s^2; 21 of the 23
-/// rolling stops that passed the checks above drifted by 0.095-0.19.
+/// with drive-offs of 0.15-0.3 m/s^2) the drift was -0.073..+0.092 m/s^2; of the 23
+/// rolling stops that passed the checks above, 22 drifted by 0.095-0.19 (21 beyond this).
 const REST_DRIFT_MAX_MPS2: f64 = 0.1;
 /// Delays of a wheel reading tried by the drift fit, as shares of the speed's age.
 const DRIFT_DELAY_SHARES: [f64; 4] = [0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0];
