@@ -292,6 +292,20 @@ impl Estimator {
         (self.samples_in(MIN_SETTLED_S) as u64).max(MIN_SETTLED_SAMPLES)
     }
 
+    /// The wheel readings (`wheel_marks`) the rest check compares besides the last one
+    /// with a speed at `t_w`: at least `MARK_MIN_LEAD_S` before it, at most
+    /// `MARK_SPAN_MAX_S` before the rest edge at `t_rest`, and within the history.
+    fn rest_marks(&self, t_w: f64, t_rest: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let first_s = self.hist.get(0).t_s;
+        self.wheel_marks
+            .iter()
+            .flatten()
+            .copied()
+            .filter(move |&(t_m, _)| {
+                t_m < t_w - MARK_MIN_LEAD_S && t_rest - t_m <= MARK_SPAN_MAX_S && first_s < t_m
+            })
+    }
+
     /// How fast the IMU's speed, integrated back from the rest edge (history sample
     /// `rest`, time `t_rest`, attitude `q`), drifts off the wheels' over the last reading
     /// with a speed (`t_w`, `v_w`) and the marks of the seconds before it, m/s^2 per
@@ -313,13 +327,7 @@ impl Estimator {
         let age = self.cfg.max_wheel_speed_age_s;
         let mut obs = [(0.0, 0.0); N];
         let mut n = 0;
-        for (t, v) in std::iter::once((t_w, v_w)).chain(
-            self.wheel_marks
-                .iter()
-                .flatten()
-                .copied()
-                .filter(|&(t_m, _)| t_m < t_w - MARK_MIN_LEAD_S && t_rest - t_m <= MARK_SPAN_MAX_S),
-        ) {
+        for (t, v) in std::iter::once((t_w, v_w)).chain(self.rest_marks(t_w, t_rest)) {
             if n < N && t - age > first_s {
                 obs[n] = (t, v);
                 n += 1;
@@ -428,20 +436,13 @@ impl Estimator {
                 // tilt's drift; a car still rolling that pulls away steadily, whose
                 // "gravity" holds its acceleration, drifts off them by that acceleration
                 // every second (a dead zone of 3 km/h hides the whole rolling stop).
-                let marks = self.wheel_marks;
-                for (t_m, v_m) in marks.iter().flatten().copied() {
-                    let span_s = t_rest - t_m;
-                    if t_m >= t_w - MARK_MIN_LEAD_S
-                        || span_s > MARK_SPAN_MAX_S
-                        || self.hist.get(0).t_s >= t_m
-                    {
-                        continue;
-                    }
-                    let tol = MARK_SPEED_TOL_MPS + MARK_TILT_DRIFT_MPS2 * span_s;
-                    if span_at(t_m).is_some_and(|span| off(span, v_m) > tol) {
-                        self.quiet_since = None;
-                        return;
-                    }
+                let mark_off = self.rest_marks(t_w, t_rest).any(|(t_m, v_m)| {
+                    let tol = MARK_SPEED_TOL_MPS + MARK_TILT_DRIFT_MPS2 * (t_rest - t_m);
+                    span_at(t_m).is_some_and(|span| off(span, v_m) > tol)
+                });
+                if mark_off {
+                    self.quiet_since = None;
+                    return;
                 }
                 // Each reading alone may pass while the two effects of a rolling stop
                 // cancel: the speed it still has at the "rest" edge, and the pull-away
