@@ -242,7 +242,9 @@ fn level_stand(seconds: f64, pitch: f64) -> Scenario {
 
 #[test]
 fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
-    let sc = level_stand(12.0, 0.6);
+    let mut sc = level_stand(12.0, 0.6);
+    // Rolled 0.5 deg on its mount, left side up.
+    sc.vehicle.imu_mount_deg = [0.5, 0.0, 0.0];
     let mut log = Vec::new();
     for f in frames_of(&sc) {
         log.extend_from_slice(format!("{}\n", leveld::can::candump::CandumpLine(&f)).as_bytes());
@@ -251,6 +253,7 @@ fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
     let cal = leveld::daemon::calibrate::from_log(&mut p, &mut &log[..], None, 5.0).unwrap();
     // 5 s at 300 ug/sqrt(Hz): the mean is good to well under 0.01 deg.
     assert!((cal.reference_pitch_deg - 0.6).abs() < 0.01, "{cal:?}");
+    assert!((cal.reference_roll_deg - 0.5).abs() < 0.01, "{cal:?}");
     let d = tmp("cal");
     let (cal_path, state_path) = (d.join("calibration.json"), d.join("state.json"));
     leveld::daemon::calibrate::store(&mut p, &cal_path, &state_path, &cal).unwrap();
@@ -258,6 +261,10 @@ fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
     assert_eq!(
         leveld::daemon::calibration::load(&cal_path).reference_pitch_deg(),
         Some(cal.reference_pitch_deg)
+    );
+    assert_eq!(
+        leveld::daemon::calibration::load(&cal_path).reference_roll_deg(),
+        Some(cal.reference_roll_deg)
     );
     match leveld::daemon::state::load(&state_path) {
         leveld::daemon::state::Loaded::State(s) => {

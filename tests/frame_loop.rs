@@ -233,6 +233,7 @@ fn the_calibration_survives_a_corrupt_state_file_and_is_never_silently_lost() {
     let cal = CalibrationFile {
         format: CalibrationFile::FORMAT,
         reference_pitch_deg: 0.8,
+        reference_roll_deg: None,
         settled_s: 30.0,
         written_unix_s: 1.8e9,
     };

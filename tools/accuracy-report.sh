@@ -56,6 +56,11 @@ sens() {
         "realistic.gentle_accel_mps2=[0.15, 0.3]"
     sens "stop-and-go, drive-offs and rolling stops' pull-aways at 0.15-0.3 m/s^2" stop-and-go \
         "realistic.gentle_accel_mps2=[0.15, 0.3]"
+    sens "urban, lanes falling 2.5 % to the right" urban realistic.cross_slope_pct=2.5
+    sens "urban, body pitching 0.4-0.5 deg per m/s^2 (a soft SUV)" urban \
+        "realistic.pitch_per_accel_deg=[0.4, 0.5]"
+    sens "stop-and-go, body pitching 0.4-0.5 deg per m/s^2 (a soft SUV)" stop-and-go \
+        "realistic.pitch_per_accel_deg=[0.4, 0.5]"
     sens "urban, engine idling (0.2 m/s^2 rms at 25 Hz)" urban realistic.idle_vibration_mps2=0.2
     sens "stop-and-go, engine idling (0.2 m/s^2 rms at 25 Hz)" stop-and-go \
         realistic.idle_vibration_mps2=0.2

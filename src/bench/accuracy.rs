@@ -178,6 +178,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(short_windows, "2-m-windows")),
         Box::new(Leveld::new(no_fallback, "no-half-windows")),
         Box::new(Leveld::new(no_grade, "no-grade-pitch")),
+        Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]
 }
@@ -200,6 +201,11 @@ pub fn methods() -> Vec<Box<dyn PitchMethod>> {
 pub fn run_case(case: &Case, make: &dyn Fn() -> Vec<Box<dyn PitchMethod>>) -> Vec<Row> {
     let drive = simulate(&case.scenario);
     let mut ms = make();
+    // Every car has been through the end-of-line calibration.
+    let floor_roll = crate::sim::floor_roll_deg(&case.scenario);
+    for m in ms.iter_mut() {
+        m.calibrate_floor_roll(floor_roll);
+    }
     let mut tracks: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); ms.len()];
     let mut valid_at: Vec<Option<(f64, f64)>> = vec![None; ms.len()];
     let mut next_sample = 0.0;

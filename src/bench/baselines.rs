@@ -17,6 +17,8 @@ pub trait PitchMethod {
     fn rejected(&self) -> u64 {
         0
     }
+    /// The IMU's roll an end-of-line station read on the level floor, deg.
+    fn calibrate_floor_roll(&mut self, _roll_deg: f64) {}
 }
 
 /// leveld's estimator as a [`PitchMethod`]; converged = VALID (standard error and
@@ -34,6 +36,8 @@ pub struct Leveld {
     max_std_err_deg: f64,
     min_windows: f64,
     name: &'static str,
+    /// Take the end-of-line roll (off: a car calibrated for pitch only).
+    floor_roll: bool,
 }
 
 impl Leveld {
@@ -45,7 +49,14 @@ impl Leveld {
             max_std_err_deg: VALID_MAX_STD_ERR_DEG,
             min_windows: VALID_MIN_WEIGHT,
             name,
+            floor_roll: true,
         }
+    }
+
+    /// The same without the end-of-line roll: windows keep a lane's roll in.
+    pub fn without_floor_roll(mut self) -> Self {
+        self.floor_roll = false;
+        self
     }
     fn take(&mut self, e: Event) {
         match e {
@@ -61,6 +72,11 @@ impl Leveld {
 impl PitchMethod for Leveld {
     fn name(&self) -> &'static str {
         self.name
+    }
+    fn calibrate_floor_roll(&mut self, roll_deg: f64) {
+        if self.floor_roll {
+            self.est.set_floor_roll_deg(Some(roll_deg));
+        }
     }
     fn push_wheels(&mut self, w: WheelSpeeds) {
         let mut buf = Vec::new();

@@ -110,6 +110,7 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
     };
     let drive = simulate(&case.scenario);
     let mut est = Estimator::new(EstimatorConfig::default()).expect("default config is valid");
+    est.set_floor_roll_deg(Some(crate::sim::floor_roll_deg(&case.scenario)));
     let mut events: Vec<Event> = Vec::new();
     // Estimate just before each stop's drive-off, and the first converged time.
     let mut before_go: Vec<Option<f64>> = vec![None; plan.stops.len()];

@@ -36,9 +36,15 @@ pub fn run(
             cal.reference_pitch_deg
         );
     }
+    if cal.reference_roll_deg.abs() > 10.0 {
+        bail!(
+            "measured roll {:+.2} deg is implausible for a level floor; check the IMU mounting and axes",
+            cal.reference_roll_deg
+        );
+    }
     println!(
-        "reference pitch {:+.3} deg from {:.1} s of standstill",
-        cal.reference_pitch_deg, cal.settled_s
+        "reference pitch {:+.3} deg, roll {:+.3} deg, from {:.1} s of standstill",
+        cal.reference_pitch_deg, cal.reference_roll_deg, cal.settled_s
     );
     if !dry_run {
         let state_path = state.map_or_else(|| cfg.state.path.clone(), |p| p.to_path_buf());

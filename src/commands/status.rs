@@ -73,13 +73,18 @@ pub fn run(config: Option<&Path>, json: bool) -> Result<i32> {
                 "saved state: {}",
                 saved["summary"].as_str().unwrap_or("-")
             )?;
-            match cal.reference_pitch_deg() {
-                Some(r) => writeln!(
+            match (cal.reference_pitch_deg(), cal.reference_roll_deg()) {
+                (Some(r), Some(roll)) => writeln!(
                     out,
-                    "calibration file: reference pitch {r:+.3} deg ({})",
+                    "calibration file: reference pitch {r:+.3} deg, roll {roll:+.3} deg ({})",
                     cfg.state.calibration_path.display()
                 )?,
-                None => writeln!(
+                (Some(r), None) => writeln!(
+                    out,
+                    "calibration file: reference pitch {r:+.3} deg, no roll ({})",
+                    cfg.state.calibration_path.display()
+                )?,
+                (None, _) => writeln!(
                     out,
                     "calibration file: {} ({})",
                     cal.describe(),

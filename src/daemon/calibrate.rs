@@ -3,7 +3,8 @@
 //! The vehicle stands on a level floor, so the road-to-body pitch equals the IMU
 //! pitch from gravity. The pipeline runs until a standstill has settled for the
 //! requested time; the result is stored in the calibration file as the reference
-//! pitch and seeds the estimate in the state file.
+//! pitch (with the IMU's roll there, which lets the windows take a lane's roll out)
+//! and seeds the estimate in the state file.
 
 use super::calibration::{self, CalibrationFile};
 use super::frame_loop::{self, LinkEvent, Observer, Received};
@@ -20,6 +21,8 @@ use std::path::Path;
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Calibration {
     pub reference_pitch_deg: f64,
+    /// The IMU's roll on the floor, deg (elevation of its y axis).
+    pub reference_roll_deg: f64,
     pub settled_s: f64,
     /// Frame time of the frame it was read at, s.
     pub at_s: f64,
@@ -69,9 +72,11 @@ impl Observer for Settle {
         }
         if let Received::Frame(f) = r
             && let Some((pitch, settled)) = p.standstill_pitch()
+            && let Some(roll) = p.standstill_roll_deg()
         {
             self.best = Some(Calibration {
                 reference_pitch_deg: pitch,
+                reference_roll_deg: roll,
                 settled_s: settled,
                 at_s: f.t_s,
             });
@@ -133,6 +138,7 @@ pub fn store(
     let file = CalibrationFile {
         format: CalibrationFile::FORMAT,
         reference_pitch_deg: cal.reference_pitch_deg,
+        reference_roll_deg: Some(cal.reference_roll_deg),
         settled_s: cal.settled_s,
         written_unix_s: super::status::unix_now_s(),
     };

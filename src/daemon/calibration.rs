@@ -21,6 +21,10 @@ pub struct CalibrationFile {
     pub format: u32,
     /// Road-to-body pitch measured on a level floor, deg.
     pub reference_pitch_deg: f64,
+    /// The IMU's roll on that floor (elevation of its y axis, left side up), deg. Files
+    /// written before it was measured lack it; windows then keep a lane's roll in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_roll_deg: Option<f64>,
     /// Settled standstill it was measured over, s.
     pub settled_s: f64,
     /// When it was written, seconds since the Unix epoch.
@@ -38,6 +42,7 @@ pub enum Calibration {
     /// leveld that kept it there.
     Calibrated {
         reference_pitch_deg: f64,
+        reference_roll_deg: Option<f64>,
         legacy: bool,
     },
     /// No calibration file.
@@ -53,6 +58,15 @@ impl Calibration {
                 reference_pitch_deg,
                 ..
             } => Some(*reference_pitch_deg),
+            _ => None,
+        }
+    }
+
+    pub fn reference_roll_deg(&self) -> Option<f64> {
+        match self {
+            Self::Calibrated {
+                reference_roll_deg, ..
+            } => *reference_roll_deg,
             _ => None,
         }
     }
@@ -88,6 +102,13 @@ pub fn parse(bytes: &[u8]) -> Result<CalibrationFile, String> {
             c.reference_pitch_deg
         ));
     }
+    if let Some(r) = c.reference_roll_deg
+        && (!r.is_finite() || r.abs() > MAX_REFERENCE_PITCH_DEG)
+    {
+        return Err(format!(
+            "reference roll {r} deg is implausible (at most {MAX_REFERENCE_PITCH_DEG} deg)"
+        ));
+    }
     Ok(c)
 }
 
@@ -99,6 +120,7 @@ pub fn load(path: &Path) -> Calibration {
         Ok(bytes) => match parse(&bytes) {
             Ok(c) => Calibration::Calibrated {
                 reference_pitch_deg: c.reference_pitch_deg,
+                reference_roll_deg: c.reference_roll_deg,
                 legacy: false,
             },
             Err(why) => Calibration::Unreadable(format!("{}: {why}", path.display())),
@@ -124,17 +146,31 @@ mod tests {
         let c = CalibrationFile {
             format: CalibrationFile::FORMAT,
             reference_pitch_deg: 0.62,
+            reference_roll_deg: Some(-0.4),
             settled_s: 30.0,
             written_unix_s: 1.8e9,
         };
         save(&path, &c).unwrap();
         assert_eq!(load(&path).reference_pitch_deg(), Some(0.62));
+        assert_eq!(load(&path).reference_roll_deg(), Some(-0.4));
+        // A file from before the roll was measured still reads, without it.
+        std::fs::write(
+            &path,
+            br#"{"format":1,"reference_pitch_deg":0.5,"settled_s":30.0,"written_unix_s":0.0}"#,
+        )
+        .unwrap();
+        assert_eq!(load(&path).reference_pitch_deg(), Some(0.5));
+        assert_eq!(load(&path).reference_roll_deg(), None);
         for (bytes, why) in [
             (&b""[..], "not valid calibration JSON"),
             (b"null", "not valid calibration JSON"),
             (
                 br#"{"format":1,"reference_pitch_deg":45.0,"settled_s":30.0,"written_unix_s":0.0}"#,
                 "implausible",
+            ),
+            (
+                br#"{"format":1,"reference_pitch_deg":0.5,"reference_roll_deg":80.0,"settled_s":30.0,"written_unix_s":0.0}"#,
+                "reference roll 80 deg is implausible",
             ),
             (
                 br#"{"format":7,"reference_pitch_deg":0.5,"settled_s":30.0,"written_unix_s":0.0}"#,

@@ -133,6 +133,7 @@ pub async fn serve<B: Bus>(
     let calibration = match (calibration::load(&cfg.state.calibration_path), legacy) {
         (Calibration::Missing, Some(r)) => Calibration::Calibrated {
             reference_pitch_deg: r,
+            reference_roll_deg: None,
             legacy: true,
         },
         (c, _) => c,

@@ -127,6 +127,7 @@ impl Pipeline {
         if let Some(r) = cal.reference_pitch_deg() {
             self.reference_pitch_deg = r;
         }
+        self.est.set_floor_roll_deg(cal.reference_roll_deg());
     }
 
     /// Bus-off or another fault outside the inputs: FAULT until cleared.
@@ -157,6 +158,11 @@ impl Pipeline {
     /// IMU pitch of the current standstill and how long it has settled, s.
     pub fn standstill_pitch(&self) -> Option<(f64, f64)> {
         self.est.standstill_pitch()
+    }
+
+    /// Roll of the settled standstill reference, deg (`Estimator::standstill_roll_deg`).
+    pub fn standstill_roll_deg(&self) -> Option<f64> {
+        self.est.standstill_roll_deg()
     }
 
     /// True once after the persisted state changed (an accepted window or a load

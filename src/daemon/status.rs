@@ -194,6 +194,7 @@ mod tests {
         let p = Pipeline::new(&cfg, &db).unwrap();
         let cal = Calibration::Calibrated {
             reference_pitch_deg: 0.25,
+            reference_roll_deg: None,
             legacy: false,
         };
         let cx = Context {

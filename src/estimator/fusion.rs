@@ -166,8 +166,7 @@ impl Estimator {
     ) {
         match r {
             Ok(g) => {
-                let r2b = imu_pitch_rad
-                    - g.slope_rad
+                let r2b = imu_pitch_rad - g.slope_rad + self.lane_roll_pitch_rad(&g)
                     - self.grade_pitch_rad(&g, condition, imu_pitch_rad);
                 if let Some((delta, new_pitch)) = self.pending_load.take() {
                     // Keep the suspected load change only if this window agrees with it.
@@ -239,6 +238,26 @@ impl Estimator {
                 })
             }
         }
+    }
+
+    /// What a lane's roll adds to the IMU's x-axis pitch, taken back out, rad (0 unless
+    /// the end-of-line calibration gave the IMU's roll on the level floor).
+    ///
+    /// The window's slope is the path's, but the reference pitch is the elevation of
+    /// the IMU's x axis. An IMU yawed on its mount by psi has that axis psi off the
+    /// travel, and on a lane that falls to the side by phi it reads psi phi more than
+    /// on a level lane: 0.03 deg for 1.2 deg of yaw and a 2.5 % crossfall, the same
+    /// sign on every lane of a crowned road. The elevation along the travel, x-axis
+    /// pitch plus the travel's yaw times the IMU's roll, does not depend on the lane's
+    /// roll; the IMU's own roll on its mount is a constant of it that the floor's roll
+    /// takes out. Both rolls are of the raw force, so an accelerometer bias is in both.
+    fn lane_roll_pitch_rad(&self, g: &window::WindowGeometry) -> f64 {
+        let Some(floor_roll) = self.floor_roll_rad else {
+            return 0.0;
+        };
+        let up_y = g.start_up_y + self.acc_bias_mps2().y / super::STANDARD_GRAVITY_MPS2;
+        let roll = up_y.clamp(-1.0, 1.0).asin();
+        g.travel_yaw_rad * (roll - floor_roll)
     }
 
     /// The pitch the body had at rest on the window's grade beyond its pitch on level
@@ -348,6 +367,8 @@ mod tests {
             max_lateral_acc_mps2: 0.0,
             mean_pitch_rad: 0.0,
             mean_accel_mps2: 0.0,
+            travel_yaw_rad: 0.0,
+            start_up_y: 0.0,
         };
         let mut shift = None;
         let imu = value_deg.to_radians();

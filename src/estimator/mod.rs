@@ -113,6 +113,9 @@ pub struct Estimator {
     last_slope_rad: Option<f64>,
     /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
     grade: GradePitch,
+    /// Roll of the IMU on the level floor of the end-of-line calibration (elevation of
+    /// its y axis, raw force), rad: lets the windows take a lane's roll out.
+    floor_roll_rad: Option<f64>,
     estimate: Option<Estimate>,
     /// Pitch the body turned at rest since the settled reference, shown in the estimate
     /// until the settled blocks or the drive-off decide on it, rad.
@@ -184,6 +187,7 @@ impl Estimator {
             baseline_pitch_rad: None,
             last_slope_rad: None,
             grade: GradePitch::default(),
+            floor_roll_rad: None,
             estimate: None,
             live_offset_rad: 0.0,
             cfg,
@@ -225,6 +229,27 @@ impl Estimator {
             return None;
         }
         Some((pitch_from(&st.mean())?.to_degrees(), st.settled_s()))
+    }
+
+    /// Roll of the settled standstill reference, deg: the elevation of the IMU's y axis
+    /// (left side up positive) from the raw mean force. On the level floor of the
+    /// end-of-line calibration it is what `set_floor_roll_deg` takes.
+    pub fn standstill_roll_deg(&self) -> Option<f64> {
+        let st = self.standstill?;
+        if st.seg_n < self.min_settled() {
+            return None;
+        }
+        let f = st.mean();
+        let n = f.norm();
+        (n > 0.0).then(|| (f.y / n).clamp(-1.0, 1.0).asin().to_degrees())
+    }
+
+    /// The IMU's roll on the level floor of the end-of-line calibration
+    /// (`standstill_roll_deg` there), deg, or `None` when it was not measured. With it
+    /// every window takes out what a lane falling to the side adds to the pitch of an
+    /// IMU yawed on its mount (`lane_roll_pitch_rad`); without, they do not.
+    pub fn set_floor_roll_deg(&mut self, roll_deg: Option<f64>) {
+        self.floor_roll_rad = roll_deg.filter(|r| r.is_finite()).map(f64::to_radians);
     }
 
     /// Feed a wheel-speed message.

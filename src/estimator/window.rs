@@ -86,6 +86,13 @@ pub struct WindowGeometry {
     /// direction): how far the body dived or squatted under the acceleration.
     pub mean_pitch_rad: f64,
     pub mean_accel_mps2: f64,
+    /// Direction of travel in the IMU's frame, rad: the angle from the IMU's x axis
+    /// towards its y axis of the path walked, each step taken against the IMU's heading
+    /// where it was walked (0 unless the IMU is yawed on its mount).
+    pub travel_yaw_rad: f64,
+    /// The y component of up in the IMU's frame at the walk's start: the sine of the
+    /// elevation of the IMU's y axis (its roll), with `setup.acc_bias_mps2` taken out.
+    pub start_up_y: f64,
 }
 
 /// Outcome of feeding a sample.
@@ -131,6 +138,10 @@ pub struct WindowIntegrator {
     ints_at_distance: (f64, f64),
     /// The short fallback window, taken as the walk passed its distance.
     short: Option<Span>,
+    /// Horizontal path walked along and across the IMU's heading at each step, m, and
+    /// its value when `distance_m` was reached.
+    body_path: (f64, f64),
+    body_path_at_distance: (f64, f64),
     active: bool,
 }
 
@@ -177,6 +188,8 @@ impl WindowIntegrator {
             last_pitch: 0.0,
             ints_at_distance: (0.0, 0.0),
             short: None,
+            body_path: (0.0, 0.0),
+            body_path_at_distance: (0.0, 0.0),
             active: false,
         }
     }
@@ -210,6 +223,8 @@ impl WindowIntegrator {
         self.last_pitch = pitch_of(&setup.q0);
         self.ints_at_distance = (0.0, 0.0);
         self.short = None;
+        self.body_path = (0.0, 0.0);
+        self.body_path_at_distance = (0.0, 0.0);
         self.active = true;
     }
 
@@ -264,6 +279,13 @@ impl WindowIntegrator {
         let d = corrected - self.last_corrected;
         self.horizontal_m += d.x.hypot(d.y);
         self.last_corrected = corrected;
+        // The step against the IMU's own heading over it: a turn carries the IMU round
+        // with the path, so only its yaw on the mount is left.
+        let ix = q0 * Vector3::x() + q1 * Vector3::x();
+        let n = ix.x.hypot(ix.y).max(1e-9);
+        let (cx, cy) = (ix.x / n, ix.y / n);
+        self.body_path.0 += d.x * cx + d.y * cy;
+        self.body_path.1 += d.y * cx - d.x * cy;
         if self.track.len() == self.track.capacity() {
             let duration_s = (s.t_s - self.t_start_s).abs();
             return self.finish_with(Err(RejectReason::TooSlow { duration_s }));
@@ -300,6 +322,7 @@ impl WindowIntegrator {
                 points: self.track.len(),
                 max_yaw: self.max_yaw,
                 max_lat: self.max_lat,
+                body_path: self.body_path,
                 // A bend of one curvature leaves a path of half the length a quarter as
                 // far from its chord.
                 limit_share: share * share,
@@ -307,6 +330,7 @@ impl WindowIntegrator {
         }
         if self.at_distance.is_none() && self.horizontal_m >= self.setup.distance_m {
             self.at_distance = Some((corrected, self.horizontal_m, duration_s));
+            self.body_path_at_distance = self.body_path;
             self.fit_slope = Some(fit());
             self.ints_at_distance = (self.int_pitch, self.int_accel);
         }
@@ -360,6 +384,7 @@ impl WindowIntegrator {
             points: self.track.len(),
             max_yaw: self.max_yaw,
             max_lat: self.max_lat,
+            body_path: self.body_path_at_distance,
             limit_share: 1.0,
         };
         let r = self.evaluate_span(&whole);
@@ -420,6 +445,9 @@ impl WindowIntegrator {
             max_lateral_acc_mps2: w.max_lat,
             mean_pitch_rad: w.ints.0 * per_s,
             mean_accel_mps2: w.ints.1 * per_s,
+            // A backward walk goes tail-first: its path points against the travel.
+            travel_yaw_rad: (sign * w.body_path.1).atan2(sign * w.body_path.0),
+            start_up_y: (s.q0.inverse() * Vector3::z()).y,
         })
     }
 }
@@ -437,6 +465,8 @@ struct Span {
     points: usize,
     max_yaw: f64,
     max_lat: f64,
+    /// Path along and across the IMU's heading (see `WindowIntegrator::body_path`).
+    body_path: (f64, f64),
     /// Share of the chord limits that applies.
     limit_share: f64,
 }
@@ -648,9 +678,15 @@ mod tests {
     /// A drive-off at 0.5 m/s^2 on a plane rising `grade` along the starting heading and
     /// `crossfall` to its left, steering into a turn of curvature `kappa` (1/m, ramped
     /// in over 1 m) from 0.3 m on, walked as a 3 m window with no turn limit. Exact
-    /// samples at 100 Hz. Returns the slope error against the grade along the starting
-    /// heading and the heading change over the window, deg.
-    fn turning_walk(grade: f64, crossfall: f64, kappa: f64) -> (f64, f64) {
+    /// samples at 100 Hz from an IMU yawed by `mount_yaw` (rad) on the body. Returns
+    /// the slope error against the grade along the starting heading and the heading
+    /// change over the window, deg, and the window.
+    fn turning_walk(
+        grade: f64,
+        crossfall: f64,
+        kappa: f64,
+        mount_yaw: f64,
+    ) -> (f64, f64, WindowGeometry) {
         let (a, h, every) = (0.5, 0.0005, 20);
         let heading_at = |s: f64| {
             // Heading after `s` m: the curvature ramps in over 1 m from 0.3 m.
@@ -671,7 +707,8 @@ mod tests {
             let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
                 * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -along.atan())
                 * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), left.atan());
-            states.push((Vector3::new(x, y, grade * x + crossfall * y), q, psi));
+            let imu = q * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), mount_yaw);
+            states.push((Vector3::new(x, y, grade * x + crossfall * y), imu, psi));
         }
         let up = Vector3::new(0.0, 0.0, G);
         let q0 = attitude_from_gravity(&(states[0].1.inverse() * up)).unwrap();
@@ -706,6 +743,7 @@ mod tests {
                 return (
                     (g.slope_rad - grade.atan()).to_degrees(),
                     states[end].2.to_degrees(),
+                    g,
                 );
             }
         }
@@ -716,20 +754,38 @@ mod tests {
     fn a_turn_is_walked_exactly_but_on_a_crossfall_it_reads_the_slope_of_another_heading() {
         // Turning on a plane that falls along the drive only, or driving straight across
         // a crossfall: the walk is exact.
-        let (err, turned) = turning_walk(0.03, 0.0, 1.0 / 15.0);
+        let (err, turned, _) = turning_walk(0.03, 0.0, 1.0 / 15.0, 0.0);
         assert!(turned > 5.0, "{turned}");
         assert!(err.abs() < 0.002, "{err}");
-        let (err, _) = turning_walk(0.03, 0.025, 0.0);
+        let (err, _, _) = turning_walk(0.03, 0.025, 0.0, 0.0);
         assert!(err.abs() < 0.002, "{err}");
         // A turn at a junction with 2.5 % crossfall: the walk measures part of the
         // crossfall as slope, which is why turning windows are rejected.
-        let (err, turned) = turning_walk(0.03, 0.025, 1.0 / 15.0);
+        let (err, turned, _) = turning_walk(0.03, 0.025, 1.0 / 15.0, 0.0);
         assert!(
             turned > 5.0 && err > 0.1,
             "{turned} deg turn, {err} deg error"
         );
-        let (mirrored, _) = turning_walk(0.03, -0.025, 1.0 / 15.0);
+        let (mirrored, _, _) = turning_walk(0.03, -0.025, 1.0 / 15.0, 0.0);
         assert!((mirrored + err).abs() < 0.002, "{mirrored} against {err}");
+    }
+
+    #[test]
+    fn the_travel_is_found_in_the_frame_of_an_imu_yawed_on_its_mount() {
+        // Body forward lies at minus the mount's yaw in the IMU's frame, straight or
+        // turning (the IMU turns with the path), and the roll of the crossfall shows in
+        // the IMU's up at the start.
+        for (kappa, yaw_deg) in [(0.0, 1.5), (0.0, -0.8), (1.0 / 15.0, 1.5)] {
+            let (_, _, g) = turning_walk(0.03, 0.025, kappa, f64::to_radians(yaw_deg));
+            let travel = g.travel_yaw_rad.to_degrees();
+            assert!(
+                (travel + yaw_deg).abs() < 0.01,
+                "{kappa}: {travel} for {yaw_deg}"
+            );
+            // Up leans to the low side: the IMU's y axis (left) is raised by the roll.
+            let roll = g.start_up_y.asin().to_degrees();
+            assert!((roll - 0.025f64.atan().to_degrees()).abs() < 0.05, "{roll}");
+        }
     }
 
     #[test]

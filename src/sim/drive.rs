@@ -96,6 +96,29 @@ struct Kin {
 /// ends at rest, which stays a step. A ramp is narrowed to half of each segment it
 /// touches, so ramps never overlap and every segment keeps its speed change: a stop
 /// planned at rest is at rest (a creep of 0.1 s segments does not leave the car rolling).
+/// Body-to-IMU rotation of an IMU mounted at `[roll, pitch, yaw]` deg: the IMU frame
+/// is the body frame turned by yaw, then pitch (nose-up), then roll.
+fn body_to_imu(mount_deg: &[f64; 3]) -> UnitQuaternion<f64> {
+    let [mr, mp, my] = mount_deg.map(f64::to_radians);
+    (UnitQuaternion::from_axis_angle(&Vector3::z_axis(), my)
+        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -mp)
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), mr))
+    .inverse()
+}
+
+/// What an end-of-line station reads as the IMU's roll with the car at rest on a level
+/// floor under its first load, deg: the elevation of the IMU's y axis from the force it
+/// measures there, its accelerometer bias at the start of the drive included.
+pub fn floor_roll_deg(sc: &Scenario) -> f64 {
+    let body = UnitQuaternion::from_axis_angle(
+        &Vector3::y_axis(),
+        -sc.load_pitch_deg_at(0.0).to_radians(),
+    );
+    let f = body_to_imu(&sc.vehicle.imu_mount_deg) * (body.inverse() * Vector3::z() * G_MPS2)
+        + Vector3::from(sc.sensors.acc_bias_mps2);
+    (f.y / f.norm()).asin().to_degrees()
+}
+
 fn ramped_accel(segs: &[super::scenario::SpeedSegment], ramp_s: f64, t: f64) -> f64 {
     let ramps = |a: f64, b: f64| ramp_s > 0.0 && !(a < 0.0 && b == 0.0) && a != b;
     let half_between = |d0: f64, d1: f64| (0.5 * ramp_s).min(0.5 * d0).min(0.5 * d1);
@@ -177,12 +200,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let mut acc_bias = Vector3::from(sen.acc_bias_mps2);
     // Falling to the right rolls the body right side down: left side up, +x rotation.
     let cross = (sc.road.cross_slope_pct / 100.0).atan();
-    let [mr, mp, my] = veh.imu_mount_deg.map(f64::to_radians);
-    // Body-to-IMU: the IMU frame is the body frame turned by yaw, then pitch, then roll.
-    let body_to_imu = (UnitQuaternion::from_axis_angle(&Vector3::z_axis(), my)
-        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -mp)
-        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), mr))
-    .inverse();
+    let body_to_imu = body_to_imu(&veh.imu_mount_deg);
     // The longitudinal vibration gets its own phase without a draw of its own (the noise
     // sequence of existing scenarios stays as it was).
     let long_phase = rough_phase + 1.7;
@@ -533,5 +551,38 @@ mod tests {
         let (p1, _) = rest_attitude(1.5);
         let share = 1.5f64.to_radians().sin() * camber_deg;
         assert!((p1 - share).abs() < 1e-3, "{p1} against {share}");
+    }
+
+    #[test]
+    fn an_end_of_line_station_reads_the_mount_roll_with_the_accelerometer_bias() {
+        use crate::sim::scenario::{Road, Vehicle};
+        let vehicle = Vehicle {
+            imu_mount_deg: [0.5, 0.8, 1.2],
+            ..Vehicle::default()
+        };
+        let mut d = at_rest(3.0, Road::constant(0.0), vehicle.clone());
+        let sc = |bias: [f64; 3]| crate::sim::scenario::Scenario {
+            speed: SpeedProfile::default().hold(3.0),
+            road: Road::constant(0.0),
+            load_pitch_deg: 0.0,
+            load_changes: Vec::new(),
+            vehicle: vehicle.clone(),
+            sensors: crate::sim::scenario::Sensors {
+                acc_bias_mps2: bias,
+                ..crate::sim::scenario::Sensors::ideal()
+            },
+            shocks: Vec::new(),
+            imu_gaps: Vec::new(),
+            seed: 1,
+        };
+        // The same roll the IMU reads at rest on a level road, from its own samples.
+        let f: nalgebra::Vector3<f64> = d.imu.remove(d.imu.len() / 2).acc_mps2.into();
+        let read = (f.y / f.norm()).asin().to_degrees();
+        let floor = super::floor_roll_deg(&sc([0.0; 3]));
+        assert!((floor - read).abs() < 1e-6, "{floor} against {read}");
+        assert!((floor - 0.5).abs() < 0.02, "{floor}");
+        // A bias to the left reads as more roll: 0.1 m/s^2 is 0.58 deg.
+        let biased = super::floor_roll_deg(&sc([0.0, 0.1, 0.0]));
+        assert!((biased - floor - 0.584).abs() < 0.005, "{biased}");
     }
 }
