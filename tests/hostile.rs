@@ -224,6 +224,16 @@ fn check_config_refuses_values_that_break_the_daemon() {
         ("leveling", "valid_min_windows = inf", "valid_min_windows"),
         ("leveling", "valid_min_windows = -3.0", "valid_min_windows"),
         ("leveling", "max_clock_step_s = 0.0", "max_clock_step_s"),
+        (
+            "estimator",
+            "acc_matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, 0.0, 1.0]]",
+            "acc_matrix[2][0]",
+        ),
+        (
+            "estimator",
+            "acc_matrix = [[1.0, 0.0, 0.0], [0.0, nan, 0.0], [0.0, 0.0, 1.0]]",
+            "acc_matrix[1][1]",
+        ),
     ];
     for (section, line, field) in cases {
         let e = config_error(&|t| set(t, section, line));

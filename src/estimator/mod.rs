@@ -38,7 +38,7 @@ pub use types::{ImuSample, WheelSpeeds};
 pub use window::RejectReason;
 
 use gravity::{GravityFilter, pitch_from};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use ring::Ring;
 use standstill::{ForwardCtx, Standstill};
 use window::WindowIntegrator;
@@ -113,6 +113,8 @@ pub struct Estimator {
     last_slope_rad: Option<f64>,
     /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
     grade: GradePitch,
+    /// `cfg.acc_matrix`, unless it is the identity.
+    acc_matrix: Option<Matrix3<f64>>,
     /// Roll of the IMU on the level floor of the end-of-line calibration (elevation of
     /// its y axis, raw force), rad: lets the windows take a lane's roll out.
     floor_roll_rad: Option<f64>,
@@ -188,6 +190,10 @@ impl Estimator {
             last_slope_rad: None,
             grade: GradePitch::default(),
             floor_roll_rad: None,
+            acc_matrix: {
+                let m = Matrix3::from_fn(|i, j| cfg.acc_matrix[i][j]);
+                (m != Matrix3::identity()).then_some(m)
+            },
             estimate: None,
             live_offset_rad: 0.0,
             cfg,
@@ -317,7 +323,7 @@ impl Estimator {
     }
 
     /// Feed an IMU sample.
-    pub fn push_imu(&mut self, s: ImuSample, emit: &mut dyn FnMut(Event)) {
+    pub fn push_imu(&mut self, mut s: ImuSample, emit: &mut dyn FnMut(Event)) {
         if !s.t_s.is_finite()
             || s.acc_mps2
                 .iter()
@@ -329,6 +335,9 @@ impl Estimator {
                 reason: DropReason::NonFinite,
             });
             return;
+        }
+        if let Some(m) = self.acc_matrix {
+            s.acc_mps2 = (m * Vector3::from(s.acc_mps2)).into();
         }
         if let Some(t) = self.last_t_s {
             if s.t_s <= t {

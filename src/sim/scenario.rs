@@ -268,6 +268,10 @@ pub struct Sensors {
     pub acc_bias_mps2: [f64; 3],
     /// Accelerometer bias random walk, m/s^2 per sqrt(s).
     pub acc_bias_walk_mps2_rts: f64,
+    /// The accelerometer's axes: row i is what channel i reads of a force along the
+    /// IMU's x, y and z (identity: square axes of unit gain). `[2][0] = 0.005` is a z
+    /// axis leaning 0.29 deg towards x.
+    pub acc_axes: [[f64; 3]; 3],
     /// Gyro white-noise density, deg/s per sqrt(Hz).
     pub gyro_noise_dps_rthz: f64,
     /// Constant gyro bias per axis, deg/s.
@@ -298,6 +302,7 @@ impl Default for Sensors {
             wheel_rate_hz: 50.0,
             acc_noise_ug_rthz: 300.0,
             acc_bias_mps2: [0.0; 3],
+            acc_axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
             acc_bias_walk_mps2_rts: 0.0,
             gyro_noise_dps_rthz: 0.01,
             gyro_bias_dps: [0.0; 3],
@@ -344,6 +349,18 @@ impl Sensors {
         ];
         for (key, v, lo, hi, hint) in checks {
             in_range(&format!("sensors.{key}"), v, lo, hi, hint)?;
+        }
+        for (i, row) in self.acc_axes.iter().enumerate() {
+            for (j, &v) in row.iter().enumerate() {
+                let (lo, hi) = if i == j { (0.5, 1.5) } else { (-0.2, 0.2) };
+                in_range(
+                    &format!("sensors.acc_axes[{i}][{j}]"),
+                    v,
+                    lo,
+                    hi,
+                    "give 0.5-1.5 on the diagonal, -0.2..0.2 off it",
+                )?;
+            }
         }
         for axis in 0..3 {
             let (a, w) = (self.acc_bias_mps2[axis], self.gyro_bias_dps[axis]);
