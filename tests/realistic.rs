@@ -1532,22 +1532,20 @@ fn a_load_ramping_in_from_the_first_second_of_a_short_stop_shows_before_drive_of
     }
 }
 
-/// Mean error of the windows leveld accepts on an urban drive with an INS-grade IMU
-/// (so that a bias of hundredths stands out) yawed 1.5 deg on its mount, on lanes that
-/// fall `cross_slope_pct` to the side, with or without the end-of-line roll, deg.
-fn yawed_imu_window_bias(seed: u64, cross_slope_pct: f64, floor_roll: bool) -> f64 {
+/// An urban drive of 10 stops with an INS-grade IMU (so that a bias of hundredths of a
+/// degree stands out), its sensors then changed by `change`.
+fn ins_grade_urban(seed: u64, change: impl FnOnce(&mut Sensors)) -> leveld::sim::Scenario {
     let s = with_sensors(spec(seed, 10, RealisticSpec::default()), |x| {
         x.acc_noise_ug_rthz = 30.0;
         x.gyro_noise_dps_rthz = 0.003;
+        change(x);
     });
-    let mut sc = s.cases()[0].scenario.clone();
-    sc.vehicle.imu_mount_deg = [0.6, 0.4, 1.5];
-    sc.road.cross_slope_pct = cross_slope_pct;
-    let drive = simulate(&sc);
-    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-    if floor_roll {
-        est.set_floor_roll_deg(Some(leveld::sim::floor_roll_deg(&sc)));
-    }
+    s.cases()[0].scenario.clone()
+}
+
+/// Mean error of the windows `est` accepts over the drive of `sc`, deg.
+fn mean_window_error(sc: &leveld::sim::Scenario, mut est: Estimator) -> f64 {
+    let drive = simulate(sc);
     let mut errs = Vec::new();
     for input in drive.merged() {
         let mut take = |e: Event| {
@@ -1562,6 +1560,19 @@ fn yawed_imu_window_bias(seed: u64, cross_slope_pct: f64, floor_roll: bool) -> f
     }
     assert!(errs.len() >= 8, "{} windows", errs.len());
     errs.iter().sum::<f64>() / errs.len() as f64
+}
+
+/// Mean window error with the IMU yawed 1.5 deg on its mount, on lanes that fall
+/// `cross_slope_pct` to the side, with or without the end-of-line roll, deg.
+fn yawed_imu_window_bias(seed: u64, cross_slope_pct: f64, floor_roll: bool) -> f64 {
+    let mut sc = ins_grade_urban(seed, |_| {});
+    sc.vehicle.imu_mount_deg = [0.6, 0.4, 1.5];
+    sc.road.cross_slope_pct = cross_slope_pct;
+    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+    if floor_roll {
+        est.set_floor_roll_deg(Some(leveld::sim::floor_roll_deg(&sc)));
+    }
+    mean_window_error(&sc, est)
 }
 
 #[test]
@@ -1585,31 +1596,10 @@ fn a_lane_falling_to_the_side_does_not_bias_an_imu_yawed_on_its_mount() {
     }
 }
 
-/// Mean error of the windows leveld (configured by `cfg`) accepts on an urban drive
-/// with an INS-grade IMU whose accelerometer axes are `axes`, deg.
+/// Mean window error with accelerometer axes `axes`, leveld configured by `cfg`, deg.
 fn window_bias_with_axes(seed: u64, axes: [[f64; 3]; 3], cfg: EstimatorConfig) -> f64 {
-    let s = with_sensors(spec(seed, 10, RealisticSpec::default()), |x| {
-        x.acc_noise_ug_rthz = 30.0;
-        x.gyro_noise_dps_rthz = 0.003;
-        x.acc_axes = axes;
-    });
-    let sc = s.cases()[0].scenario.clone();
-    let drive = simulate(&sc);
-    let mut est = Estimator::new(cfg).unwrap();
-    let mut errs = Vec::new();
-    for input in drive.merged() {
-        let mut take = |e: Event| {
-            if let Event::WindowAccepted { window, .. } = e {
-                errs.push(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg);
-            }
-        };
-        match input {
-            Input::Imu(x) => est.push_imu(x, &mut take),
-            Input::Wheels(w) => est.push_wheels(w, &mut take),
-        }
-    }
-    assert!(errs.len() >= 8, "{} windows", errs.len());
-    errs.iter().sum::<f64>() / errs.len() as f64
+    let sc = ins_grade_urban(seed, |x| x.acc_axes = axes);
+    mean_window_error(&sc, Estimator::new(cfg).unwrap())
 }
 
 #[test]
