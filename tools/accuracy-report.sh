@@ -57,6 +57,8 @@ sens() {
     sens "stop-and-go, drive-offs and rolling stops' pull-aways at 0.15-0.3 m/s^2" stop-and-go \
         "realistic.gentle_accel_mps2=[0.15, 0.3]"
     sens "urban, lanes falling 2.5 % to the right" urban realistic.cross_slope_pct=2.5
+    sens "urban, accelerometer z axis leaning 0.29 deg towards x, uncalibrated" urban \
+        "sensors.acc_axes=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.005, 0.0, 1.0]]"
     sens "urban, body pitching 0.4-0.5 deg per m/s^2 (a soft SUV)" urban \
         "realistic.pitch_per_accel_deg=[0.4, 0.5]"
     sens "stop-and-go, body pitching 0.4-0.5 deg per m/s^2 (a soft SUV)" stop-and-go \
