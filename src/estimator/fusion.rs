@@ -11,6 +11,11 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// rocked), and the gyro's turn over a ramp that ends at drive-off within about 0.1.
 const LOAD_STEP_SD_DEG: f64 = 0.05;
 
+/// Largest direction of travel in the IMU's frame a window's lane-roll correction
+/// takes, rad (5 deg): an IMU yawed further on its mount is mounted wrong, and a single
+/// window's path finds the yaw to a few tenths of a degree.
+const MAX_TRAVEL_YAW_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
+
 /// A run of windows must stand this many standard errors from the estimate to be taken
 /// for a shift: its weighted mean against the spread of windows of its weight and the
 /// estimate's own standard error. Three windows beyond 0.4 deg on one side also come
@@ -257,7 +262,10 @@ impl Estimator {
         };
         let up_y = g.start_up_y + self.acc_bias_mps2().y / super::STANDARD_GRAVITY_MPS2;
         let roll = up_y.clamp(-1.0, 1.0).asin();
-        g.travel_yaw_rad * (roll - floor_roll)
+        let yaw = g
+            .travel_yaw_rad
+            .clamp(-MAX_TRAVEL_YAW_RAD, MAX_TRAVEL_YAW_RAD);
+        yaw * (roll - floor_roll)
     }
 
     /// The pitch the body had at rest on the window's grade beyond its pitch on level
