@@ -287,6 +287,25 @@ fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
     let e =
         leveld::daemon::calibrate::from_log(&mut pipeline(), &mut &log[..], None, 5.0).unwrap_err();
     assert!(e.to_string().contains("still for only"), "{e}");
+    // An IMU rolled or pitched beyond 10 deg is no mounting on a level floor: the
+    // calibration is refused before anything is stored.
+    for (mount, what) in [([15.0, 0.0, 0.0], "roll"), ([0.0, -12.0, 0.0], "pitch")] {
+        let mut sc = level_stand(12.0, 0.0);
+        sc.vehicle.imu_mount_deg = mount;
+        let mut log = Vec::new();
+        for f in frames_of(&sc) {
+            log.extend_from_slice(
+                format!("{}\n", leveld::can::candump::CandumpLine(&f)).as_bytes(),
+            );
+        }
+        let cal =
+            leveld::daemon::calibrate::from_log(&mut pipeline(), &mut &log[..], None, 5.0).unwrap();
+        let e = cal.check_plausible().unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("measured {what}")) && e.contains("implausible"),
+            "{e}"
+        );
+    }
 }
 
 fn multi_stop() -> Scenario {

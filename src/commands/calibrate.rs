@@ -13,7 +13,7 @@ pub fn run(
     dry_run: bool,
 ) -> Result<i32> {
     use crate::daemon::{calibrate, pipeline::Pipeline};
-    use anyhow::{Context, bail};
+    use anyhow::Context;
     calibrate::check_duration(duration_s)?;
     let (cfg, db, _) = crate::daemon::load(config)?;
     let mut p = Pipeline::new(&cfg, &db)?;
@@ -30,18 +30,7 @@ pub fn run(
         }
         None => crate::daemon::live::calibrate_live(&cfg, &mut p, duration_s)?,
     };
-    if cal.reference_pitch_deg.abs() > 10.0 {
-        bail!(
-            "measured pitch {:+.2} deg is implausible for a level floor; check the IMU mounting and axes",
-            cal.reference_pitch_deg
-        );
-    }
-    if cal.reference_roll_deg.abs() > 10.0 {
-        bail!(
-            "measured roll {:+.2} deg is implausible for a level floor; check the IMU mounting and axes",
-            cal.reference_roll_deg
-        );
-    }
+    cal.check_plausible()?;
     println!(
         "reference pitch {:+.3} deg, roll {:+.3} deg, from {:.1} s of standstill",
         cal.reference_pitch_deg, cal.reference_roll_deg, cal.settled_s

@@ -28,6 +28,26 @@ pub struct Calibration {
     pub at_s: f64,
 }
 
+impl Calibration {
+    /// On a level floor the IMU's pitch and roll are those of its mounting: beyond
+    /// `MAX_REFERENCE_PITCH_DEG` (which a calibration file is refused for, too) the
+    /// floor is not level or the IMU's axes are set up wrong, and nothing is stored.
+    pub fn check_plausible(&self) -> Result<()> {
+        let max = calibration::MAX_REFERENCE_PITCH_DEG;
+        for (what, v) in [
+            ("pitch", self.reference_pitch_deg),
+            ("roll", self.reference_roll_deg),
+        ] {
+            if !(v.abs() <= max) {
+                bail!(
+                    "measured {what} {v:+.2} deg is implausible for a level floor (at most {max} deg); check the floor and the IMU mounting and axes"
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The standstill a calibration needs must be a real one: 1 s to 1 h.
 pub fn check_duration(duration_s: f64) -> Result<()> {
     if !(1.0..=3600.0).contains(&duration_s) {
