@@ -230,10 +230,7 @@ impl Estimator {
     /// Settled standstill reference: IMU pitch from gravity (deg) and the seconds of
     /// settled samples behind it. `None` while moving or before anything settled.
     pub fn standstill_pitch(&self) -> Option<(f64, f64)> {
-        let st = self.standstill?;
-        if st.seg_n < self.min_settled() {
-            return None;
-        }
+        let st = self.settled_standstill()?;
         Some((pitch_from(&st.mean())?.to_degrees(), st.settled_s()))
     }
 
@@ -241,13 +238,14 @@ impl Estimator {
     /// (left side up positive) from the raw mean force. On the level floor of the
     /// end-of-line calibration it is what `set_floor_roll_deg` takes.
     pub fn standstill_roll_deg(&self) -> Option<f64> {
-        let st = self.standstill?;
-        if st.seg_n < self.min_settled() {
-            return None;
-        }
-        let f = st.mean();
+        let f = self.settled_standstill()?.mean();
         let n = f.norm();
         (n > 0.0).then(|| (f.y / n).clamp(-1.0, 1.0).asin().to_degrees())
+    }
+
+    /// The current standstill once its reference has settled.
+    fn settled_standstill(&self) -> Option<standstill::Standstill> {
+        self.standstill.filter(|st| st.seg_n >= self.min_settled())
     }
 
     /// The IMU's roll on the level floor of the end-of-line calibration

@@ -767,12 +767,14 @@ impl Estimator {
             sum += b_sum;
             n += b_n;
         }
-        let force = (n >= min_n)
-            .then(|| Some(pitch_from(&(sum / n as f64))? - pitch_from(&st.mean())?))
-            .flatten();
-        match force {
-            Some(f) if turn_matches(f, gyro_turn_rad, gyro_turn_rad) => 0.5 * (f + gyro_turn_rad),
-            _ => gyro_turn_rad,
+        let force = match (pitch_from(&(sum / n.max(1) as f64)), pitch_from(&st.mean())) {
+            (Some(after), Some(before)) if n >= min_n => after - before,
+            _ => return gyro_turn_rad,
+        };
+        if turn_matches(force, gyro_turn_rad, gyro_turn_rad) {
+            0.5 * (force + gyro_turn_rad)
+        } else {
+            gyro_turn_rad
         }
     }
 

@@ -114,8 +114,7 @@ pub fn floor_roll_deg(sc: &Scenario) -> f64 {
         &Vector3::y_axis(),
         -sc.load_pitch_deg_at(0.0).to_radians(),
     );
-    let axes = nalgebra::Matrix3::from_fn(|i, j| sc.sensors.acc_axes[i][j]);
-    let f = axes
+    let f = sc.sensors.acc_axes_matrix()
         * (body_to_imu(&sc.vehicle.imu_mount_deg) * (body.inverse() * Vector3::z() * G_MPS2))
         + Vector3::from(sc.sensors.acc_bias_mps2);
     (f.y / f.norm()).asin().to_degrees()
@@ -203,7 +202,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
     // Falling to the right rolls the body right side down: left side up, +x rotation.
     let cross = (sc.road.cross_slope_pct / 100.0).atan();
     let body_to_imu = body_to_imu(&veh.imu_mount_deg);
-    let acc_axes = nalgebra::Matrix3::from_fn(|i, j| sen.acc_axes[i][j]);
+    let acc_axes = sen.acc_axes_matrix();
     // The longitudinal vibration gets its own phase without a draw of its own (the noise
     // sequence of existing scenarios stays as it was).
     let long_phase = rough_phase + 1.7;

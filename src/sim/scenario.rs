@@ -382,6 +382,11 @@ impl Sensors {
         Ok(())
     }
 
+    /// `acc_axes` as a matrix: what the accelerometer reads of a force in the IMU's axes.
+    pub fn acc_axes_matrix(&self) -> nalgebra::Matrix3<f64> {
+        nalgebra::Matrix3::from_fn(|i, j| self.acc_axes[i][j])
+    }
+
     /// Error-free sensors with ideal wheel speeds.
     pub fn ideal() -> Self {
         Self {
