@@ -12,7 +12,8 @@ pub trait PitchMethod {
     fn finish(&mut self, t_s: f64);
     /// Current estimate (deg) and whether the method calls it converged.
     fn estimate(&self) -> Option<(f64, bool)>;
-    /// Single-window (single-update) estimates so far: (time s, road-to-body deg).
+    /// Single-window (single-update) estimates so far: (time s the value holds at,
+    /// road-to-body deg).
     fn windows(&self) -> &[(f64, f64)];
     fn rejected(&self) -> u64 {
         0
@@ -60,9 +61,9 @@ impl Leveld {
     }
     fn take(&mut self, e: Event) {
         match e {
-            Event::WindowAccepted { window, .. } => {
-                self.windows.push((window.t_s, window.road_to_body_deg))
-            }
+            Event::WindowAccepted { window, .. } => self
+                .windows
+                .push((window.reference_s, window.road_to_body_deg)),
             Event::WindowRejected { .. } => self.rejected += 1,
             _ => {}
         }

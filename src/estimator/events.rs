@@ -30,6 +30,10 @@ pub struct Estimate {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct WindowReport {
     pub t_s: f64,
+    /// Middle of the stop's reference the window's pitch was measured against, s: the
+    /// body held `road_to_body_deg` then. Equal to `t_s` but for a deceleration window
+    /// whose stop settled only after a load came in, whose value is the new load's.
+    pub reference_s: f64,
     pub condition: Condition,
     /// IMU pitch at the stop from gravity (eq. 9), deg.
     pub imu_pitch_deg: f64,

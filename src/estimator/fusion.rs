@@ -121,7 +121,7 @@ impl Estimator {
             r,
             Condition::AccelAfterStop,
             ctx.imu_pitch_rad,
-            t_now,
+            (t_now, t_now),
             share,
             emit,
         );
@@ -156,16 +156,17 @@ impl Estimator {
         t_s: f64,
         emit: &mut dyn FnMut(Event),
     ) {
-        self.report_window_weighted(r, condition, imu_pitch_rad, t_s, 1.0, emit);
+        self.report_window_weighted(r, condition, imu_pitch_rad, (t_s, t_s), 1.0, emit);
     }
 
-    /// `report_window` for a window worth `weight_share` of a settled one of its length.
+    /// `report_window` for a window worth `weight_share` of a settled one of its length,
+    /// reported at `t_s` and measured against the body's pitch at `reference_s`.
     pub(super) fn report_window_weighted(
         &mut self,
         r: Result<window::WindowGeometry, RejectReason>,
         condition: Condition,
         imu_pitch_rad: f64,
-        t_s: f64,
+        (t_s, reference_s): (f64, f64),
         weight_share: f64,
         emit: &mut dyn FnMut(Event),
     ) {
@@ -219,6 +220,7 @@ impl Estimator {
                 }
                 let window = WindowReport {
                     t_s,
+                    reference_s,
                     condition,
                     imu_pitch_deg: imu_pitch_rad.to_degrees(),
                     road_slope_deg: g.slope_rad.to_degrees(),

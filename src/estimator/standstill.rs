@@ -923,7 +923,8 @@ impl Estimator {
             },
         };
         let pitch_win = pitch_of(&q_win);
-        self.report_window(r, Condition::DecelBeforeStop, pitch_win, st.t_rest_s, emit);
+        let times = (st.t_rest_s, st.segment_mid_s());
+        self.report_window_weighted(r, Condition::DecelBeforeStop, pitch_win, times, 1.0, emit);
     }
 
     /// A load that came in before the stop settled: a door shock or the ramp itself
