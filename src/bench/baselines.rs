@@ -64,6 +64,12 @@ impl Leveld {
             Event::WindowAccepted { window, .. } => self
                 .windows
                 .push((window.reference_s, window.road_to_body_deg)),
+            // A window the estimator took back out is not counted as accepted.
+            Event::WindowWithdrawn {
+                road_to_body_deg, ..
+            } if self.windows.last().is_some_and(|w| w.1 == road_to_body_deg) => {
+                self.windows.pop();
+            }
             Event::WindowRejected { .. } => self.rejected += 1,
             _ => {}
         }

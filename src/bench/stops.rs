@@ -150,10 +150,22 @@ pub fn check(case: &Case, valid: &dyn Fn(&crate::estimator::Estimate) -> bool) -
     let t_end = drive.truth.last().map_or(0.0, |x| x.t_s);
     est.finish(t_end, &mut |e| events.push(e));
 
+    let mut last_value = None;
     for e in &events {
-        if let Event::WindowAccepted { window, .. } = e {
-            out.window_errors
-                .push(window.road_to_body_deg - drive.truth_at(window.t_s).load_pitch_deg);
+        match e {
+            Event::WindowAccepted { window, .. } => {
+                let truth = drive.truth_at(window.reference_s).load_pitch_deg;
+                out.window_errors.push(window.road_to_body_deg - truth);
+                last_value = Some(window.road_to_body_deg);
+            }
+            // Taken back out of the estimate: no longer an accepted window.
+            Event::WindowWithdrawn {
+                road_to_body_deg, ..
+            } if last_value == Some(*road_to_body_deg) => {
+                out.window_errors.pop();
+                last_value = None;
+            }
+            _ => {}
         }
     }
     for (k, &(t_stop, t_go, kind, accel)) in plan.stops.iter().enumerate() {

@@ -342,6 +342,17 @@ fn log_event(e: &Event) {
                 "windows in a row disagree with the estimate; restarted from them"
             )
         }
+        Event::WindowWithdrawn {
+            road_to_body_deg,
+            imu_mps,
+            wheel_mps,
+            ..
+        } => tracing::warn!(
+            road_to_body_deg,
+            imu_mps,
+            wheel_mps,
+            "the stop was not at rest (speed after drive-off); its window withdrawn"
+        ),
         Event::WheelsStopped { .. } => tracing::info!("wheels stopped"),
         Event::LoadChangeSuspected { delta_deg, .. } => {
             tracing::info!(

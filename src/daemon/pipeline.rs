@@ -412,7 +412,9 @@ impl Pipeline {
                     changed = true;
                 }
                 Event::WindowRejected { .. } => self.counters.windows_rejected += 1,
-                Event::LoadChanged { .. } | Event::PitchShifted { .. } => changed = true,
+                Event::LoadChanged { .. }
+                | Event::PitchShifted { .. }
+                | Event::WindowWithdrawn { .. } => changed = true,
                 Event::StandstillStarted { .. } => self.counters.standstills += 1,
                 _ => {}
             }

@@ -299,6 +299,17 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
             "{t_s:12.3}  pitch shift       {delta_deg:+.3} deg (windows in a row) -> estimate {}",
             estimate.map_or("none".into(), |e| format!("{:+.3} deg", e.road_to_body_deg))
         ),
+        Event::WindowWithdrawn {
+            t_s,
+            road_to_body_deg,
+            imu_mps,
+            wheel_mps,
+            estimate,
+        } => writeln!(
+            out,
+            "{t_s:12.3}  window withdrawn  {road_to_body_deg:+.3} deg: wheels {wheel_mps:.2} m/s, IMU {imu_mps:.2} m/s since the stop -> estimate {}",
+            estimate.map_or("none".into(), |e| format!("{:+.3} deg", e.road_to_body_deg))
+        ),
         Event::SampleDropped { t_s, reason } => {
             writeln!(out, "{t_s:12.3}  sample dropped    {reason:?}")
         }

@@ -105,6 +105,19 @@ impl Averager {
         true
     }
 
+    /// Take out the newest entry, if that is still the window `handle` was given for
+    /// (nothing pushed, merged or restarted since). An entry the window pushed out of a
+    /// full set stays out. Returns whether it was taken out.
+    pub fn withdraw_newest(&mut self, handle: PairHandle) -> bool {
+        if handle.0 != self.changes || self.entries.pop().is_none() {
+            return false;
+        }
+        self.pair_bits >>= 1;
+        self.accepted = self.accepted.saturating_sub(1);
+        self.changes = self.changes.wrapping_add(1);
+        true
+    }
+
     fn push_weighted(&mut self, value_deg: f64, w: f64) {
         if self.entries.len() == self.capacity {
             self.entries.remove(0);
@@ -476,6 +489,27 @@ mod tests {
         a.restart_shifted(0.3, 0.05, 4.0);
         assert!(!a.merge_newest(h, 0.0, 1.0));
         assert_eq!(a.accepted(), 0);
+    }
+
+    #[test]
+    fn a_withdrawn_window_leaves_the_average_as_it_was() {
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        a.push(1.0);
+        a.push(1.2);
+        let before = a.combined().unwrap();
+        let h = a.push_window(3.0, 1.0);
+        assert!(a.withdraw_newest(h));
+        assert_eq!(a.combined().unwrap(), before);
+        assert_eq!(a.accepted(), 2);
+        // Only the window the handle was given for, and only once.
+        assert!(!a.withdraw_newest(h));
+        let h = a.push_window(3.0, 1.0);
+        a.push(0.9);
+        assert!(!a.withdraw_newest(h));
+        let h = a.push_window(3.0, 1.0);
+        assert!(a.merge_newest(h, 2.0, 1.0));
+        assert!(!a.withdraw_newest(h));
+        assert_eq!(a.accepted(), 6);
     }
 
     #[test]

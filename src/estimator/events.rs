@@ -99,6 +99,18 @@ pub enum Event {
         delta_deg: f64,
         estimate: Option<Estimate>,
     },
+    /// The first wheel speed after a drive-off disagreed with the speed the IMU
+    /// integrated from the standstill: the car never was at rest (a rolling stop under
+    /// the wheel sensors' dead zone) or the reference was wrong. The deceleration
+    /// window taken from that standstill is taken back out of the estimate.
+    WindowWithdrawn {
+        t_s: f64,
+        /// The withdrawn window's value, deg.
+        road_to_body_deg: f64,
+        imu_mps: f64,
+        wheel_mps: f64,
+        estimate: Option<Estimate>,
+    },
     /// An input sample was dropped (non-finite value or time going backwards).
     SampleDropped {
         t_s: f64,

@@ -202,6 +202,7 @@ impl Estimator {
                     let h = self.avg.push_window(r2b.to_degrees(), weight);
                     if condition == Condition::DecelBeforeStop {
                         self.open_pair = Some(h);
+                        self.stop_window = Some((h, r2b.to_degrees()));
                     }
                 }
                 self.last_slope_rad = Some(g.slope_rad);
@@ -332,8 +333,17 @@ const SPEED_CHECK_SHARE: f64 = 0.05;
 
 impl Estimator {
     /// Compare the first wheel reading above the dead zone after a drive-off with the
-    /// speed the forward window has integrated since the walk began at rest.
-    pub(super) fn check_forward_speed(&mut self, wheel_mps: f64) {
+    /// speed the forward window has integrated since the walk began at rest. When they
+    /// disagree, the stop's deceleration window goes too: it stands on the same
+    /// reference, and a car that only rolled through under the wheels' dead zone (the
+    /// IMU finds no drive-off where the car never stopped, and integrates nothing by
+    /// the time the wheels read 0.5 m/s) gave it a velocity that was not zero.
+    pub(super) fn check_forward_speed(
+        &mut self,
+        t_s: f64,
+        wheel_mps: f64,
+        emit: &mut dyn FnMut(Event),
+    ) {
         if !self.fwd.is_active() {
             return;
         }
@@ -352,8 +362,23 @@ impl Estimator {
         };
         ctx.speed_checked = true;
         let off = (aged_mps - wheel_mps).max(wheel_mps - imu_mps).max(0.0);
-        if off > SPEED_CHECK_TOL_MPS + SPEED_CHECK_SHARE * wheel_mps {
-            ctx.speed_mismatch = Some((imu_mps, wheel_mps));
+        if off <= SPEED_CHECK_TOL_MPS + SPEED_CHECK_SHARE * wheel_mps {
+            return;
+        }
+        ctx.speed_mismatch = Some((imu_mps, wheel_mps));
+        if let Some((h, value_deg)) = self.stop_window.take()
+            && self.avg.withdraw_newest(h)
+        {
+            self.open_pair = None;
+            self.shift_run = ShiftRun::default();
+            self.refresh_estimate();
+            emit(Event::WindowWithdrawn {
+                t_s,
+                road_to_body_deg: value_deg,
+                imu_mps,
+                wheel_mps,
+                estimate: self.estimate,
+            });
         }
     }
 }

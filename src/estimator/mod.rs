@@ -109,6 +109,9 @@ pub struct Estimator {
     /// The deceleration window accepted at the current stop, waiting for the
     /// acceleration window of the same stop to pair with.
     open_pair: Option<PairHandle>,
+    /// The deceleration window of the current stop and its value, deg, until the first
+    /// wheel speed after the drive-off confirms the stop was at rest.
+    stop_window: Option<(PairHandle, f64)>,
     baseline_pitch_rad: Option<f64>,
     last_slope_rad: Option<f64>,
     /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
@@ -186,6 +189,7 @@ impl Estimator {
                 cfg.window_sigma_prior_deg,
             ),
             open_pair: None,
+            stop_window: None,
             baseline_pitch_rad: None,
             last_slope_rad: None,
             grade: GradePitch::default(),
@@ -284,12 +288,13 @@ impl Estimator {
             }
         } else {
             self.wheels_zero_since = None;
-            self.last_wheel_motion = Some((w.t_s, w.mean_kmh() / 3.6));
+            let v_mps = w.moving_mean_kmh(self.cfg.zero_speed_kmh) / 3.6;
+            self.last_wheel_motion = Some((w.t_s, v_mps));
             if self.wheel_marks[0].is_none_or(|(t, _)| w.t_s - t >= WHEEL_MARK_EVERY_S) {
                 self.wheel_marks.rotate_right(1);
-                self.wheel_marks[0] = Some((w.t_s, w.mean_kmh() / 3.6));
+                self.wheel_marks[0] = Some((w.t_s, v_mps));
             }
-            self.check_forward_speed(w.mean_kmh() / 3.6);
+            self.check_forward_speed(w.t_s, v_mps, emit);
             if self.wheels_stopped {
                 self.wheels_stopped = false;
                 emit(Event::WheelsMoving { t_s: w.t_s });

@@ -375,6 +375,7 @@ impl Estimator {
     pub(super) fn begin_standstill(&mut self, q0_t: f64, t_now: f64, emit: &mut dyn FnMut(Event)) {
         // A window of the previous stop no longer has a partner coming.
         self.open_pair = None;
+        self.stop_window = None;
         let n = self.hist.len();
         let first_quiet = self.index_at(q0_t).min(n - 1);
         // Reference at rest: the most recent quarter second, surely stopped by now.

@@ -43,6 +43,18 @@ impl WheelSpeeds {
     pub fn mean_kmh(&self) -> f64 {
         self.kmh.iter().sum::<f64>() / 4.0
     }
+    /// Mean of the wheels that read more than `zero_kmh`, km/h (0 when none does). At
+    /// the edge of the wheel sensors' dead zone the inner wheels of a turn, or a wheel
+    /// whose sensor cuts out a little higher, still read zero while the car moves: the
+    /// mean of all four then reads the speed halved.
+    pub fn moving_mean_kmh(&self, zero_kmh: f64) -> f64 {
+        let (sum, n) = self
+            .kmh
+            .iter()
+            .filter(|&&v| v > zero_kmh)
+            .fold((0.0, 0u32), |(s, n), &v| (s + v, n + 1));
+        if n == 0 { 0.0 } else { sum / f64::from(n) }
+    }
     /// Largest wheel speed, km/h.
     pub fn max_kmh(&self) -> f64 {
         self.kmh.iter().copied().fold(0.0, f64::max)
