@@ -148,12 +148,13 @@ fn write_report(out: &mut impl Write, r: &StatusReport, now: f64, running: bool)
     }
     writeln!(
         out,
-        "sent {} (dropped {}, {} of them on a full queue), windows accepted {} rejected {}, standstills {}, reconnects {}, bus-off {}, wall-clock steps {}",
+        "sent {} (dropped {}, {} of them on a full queue), windows accepted {} rejected {} withdrawn {}, standstills {}, reconnects {}, bus-off {}, wall-clock steps {}",
         r.frames_sent,
         r.send_dropped,
         r.send_queue_full,
         r.windows_accepted,
         r.windows_rejected,
+        r.windows_withdrawn,
         r.standstills,
         r.reconnects,
         r.bus_off,

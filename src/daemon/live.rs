@@ -384,6 +384,7 @@ pub fn stats_json(p: &Pipeline, live: &LiveStats) -> serde_json::Value {
         "ignored_frames": c.ignored_frames,
         "windows_accepted": c.windows_accepted,
         "windows_rejected": c.windows_rejected,
+        "windows_withdrawn": c.windows_withdrawn,
         "standstills": c.standstills,
         "sent": live.sent,
         "send_dropped": live.send_dropped,

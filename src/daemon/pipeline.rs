@@ -27,6 +27,8 @@ pub struct Counters {
     pub ignored_frames: u64,
     pub windows_accepted: u64,
     pub windows_rejected: u64,
+    /// Accepted windows taken back out: their stop was not at rest.
+    pub windows_withdrawn: u64,
     pub standstills: u64,
 }
 
@@ -412,9 +414,11 @@ impl Pipeline {
                     changed = true;
                 }
                 Event::WindowRejected { .. } => self.counters.windows_rejected += 1,
-                Event::LoadChanged { .. }
-                | Event::PitchShifted { .. }
-                | Event::WindowWithdrawn { .. } => changed = true,
+                Event::WindowWithdrawn { .. } => {
+                    self.counters.windows_withdrawn += 1;
+                    changed = true;
+                }
+                Event::LoadChanged { .. } | Event::PitchShifted { .. } => changed = true,
                 Event::StandstillStarted { .. } => self.counters.standstills += 1,
                 _ => {}
             }

@@ -57,6 +57,8 @@ pub struct Summary {
     pub messages: std::collections::BTreeMap<String, MsgStats>,
     pub estimates_accepted: u64,
     pub estimates_rejected: u64,
+    /// Accepted windows taken back out (their stop was not at rest).
+    pub estimates_withdrawn: u64,
     pub standstills: u64,
     pub leveling_frames: u64,
     #[serde(rename = "final")]
@@ -226,6 +228,7 @@ pub fn replay<'a>(
         messages,
         estimates_accepted: c.windows_accepted,
         estimates_rejected: c.windows_rejected,
+        estimates_withdrawn: c.windows_withdrawn,
         standstills: c.standstills,
         leveling_frames: c.frames_sent,
         final_state: FinalState {
@@ -343,8 +346,12 @@ pub fn write_summary_text(out: &mut dyn Write, s: &Summary) -> std::io::Result<(
     }
     writeln!(
         out,
-        "standstills {}, windows accepted {}, rejected {}, LEVELING frames {}",
-        s.standstills, s.estimates_accepted, s.estimates_rejected, s.leveling_frames
+        "standstills {}, windows accepted {}, rejected {}, withdrawn {}, LEVELING frames {}",
+        s.standstills,
+        s.estimates_accepted,
+        s.estimates_rejected,
+        s.estimates_withdrawn,
+        s.leveling_frames
     )?;
     match s.final_state.road_to_body_pitch_deg {
         Some(p) => writeln!(

@@ -68,6 +68,8 @@ pub struct StatusReport {
     pub wall_clock_steps: u64,
     pub windows_accepted: u64,
     pub windows_rejected: u64,
+    #[serde(default)]
+    pub windows_withdrawn: u64,
     pub standstills: u64,
 }
 
@@ -137,6 +139,7 @@ pub fn report(p: &Pipeline, live: &LiveStats, cx: &Context) -> StatusReport {
         wall_clock_steps: live.wall_clock_steps,
         windows_accepted: p.counters().windows_accepted,
         windows_rejected: p.counters().windows_rejected,
+        windows_withdrawn: p.counters().windows_withdrawn,
         standstills: p.counters().standstills,
     }
 }
