@@ -204,9 +204,9 @@ fn gentle_drive_offs_from_stops_too_short_to_settle_give_windows() {
 /// A car that pulls away at 0.15-0.3 m/s^2 and turns right after is turning by the time
 /// its wheels leave the dead zone: the outer wheels read 1.8 km/h while the inner ones
 /// still read zero, and the mean of all four said half the speed. The first-speed check
-/// refused such windows as a speed mismatch (and took the stop's deceleration window
-/// back out) on 7 of 64 drives (4 scenarios, 8 seeds, both loads); the wheels that read
-/// zero are now left out of that speed.
+/// refused such windows as a speed mismatch and took the stop's deceleration window
+/// back out at 7 stops of 128 drives (4 scenarios, 16 seeds, both loads); the wheels
+/// that read zero are now left out of that speed.
 #[test]
 fn a_wheel_still_in_the_dead_zone_does_not_halve_the_speed_a_window_is_checked_with() {
     let set = ["realistic.gentle_accel_mps2=[0.15, 0.3]".to_string()];
