@@ -417,12 +417,16 @@ fn rolling_stops_give_no_window_and_no_load_change() {
 /// as a drift.
 #[test]
 fn rolling_stops_that_pull_away_very_gently_give_no_window() {
-    let r = RealisticSpec {
+    assert_stops_give_nothing(very_gentle_rolling_stops(), &[1, 2, 4], 0, 1.8);
+}
+
+/// Every stop but the first is rolling, and every pull-away takes 0.15-0.3 m/s^2.
+fn very_gentle_rolling_stops() -> RealisticSpec {
+    RealisticSpec {
         rolling_stop_share: 1.0,
         gentle_accel_mps2: [0.15, 0.3],
         ..gentle()
-    };
-    assert_stops_give_nothing(r, &[1, 2, 4], 0, 1.8);
+    }
 }
 
 /// Over seeds 1-40 of the drives above (360 rolling stops), two stops of seed 34 still
@@ -433,12 +437,7 @@ fn rolling_stops_that_pull_away_very_gently_give_no_window() {
 /// was before the stop.
 #[test]
 fn a_rolling_stop_taken_for_rest_has_its_window_withdrawn_at_the_first_wheel_speed() {
-    let r = RealisticSpec {
-        rolling_stop_share: 1.0,
-        gentle_accel_mps2: [0.15, 0.3],
-        ..gentle()
-    };
-    let s = with_dead_zone(spec(34, 10, r), 1.8);
+    let s = with_dead_zone(spec(34, 10, very_gentle_rolling_stops()), 1.8);
     let case = &s.cases()[0];
     let drive = simulate(&case.scenario);
     let ev = drive_events(&drive);

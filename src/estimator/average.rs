@@ -107,15 +107,16 @@ impl Averager {
 
     /// Take out the newest entry, if that is still the window `handle` was given for
     /// (nothing pushed, merged or restarted since). An entry the window pushed out of a
-    /// full set stays out. Returns whether it was taken out.
-    pub fn withdraw_newest(&mut self, handle: PairHandle) -> bool {
-        if handle.0 != self.changes || self.entries.pop().is_none() {
-            return false;
+    /// full set stays out. Returns the value taken out, deg.
+    pub fn withdraw_newest(&mut self, handle: PairHandle) -> Option<f64> {
+        if handle.0 != self.changes {
+            return None;
         }
+        let (value_deg, _) = self.entries.pop()?;
         self.pair_bits >>= 1;
         self.accepted = self.accepted.saturating_sub(1);
         self.changes = self.changes.wrapping_add(1);
-        true
+        Some(value_deg)
     }
 
     fn push_weighted(&mut self, value_deg: f64, w: f64) {
@@ -498,17 +499,17 @@ mod tests {
         a.push(1.2);
         let before = a.combined().unwrap();
         let h = a.push_window(3.0, 1.0);
-        assert!(a.withdraw_newest(h));
+        assert_eq!(a.withdraw_newest(h), Some(3.0));
         assert_eq!(a.combined().unwrap(), before);
         assert_eq!(a.accepted(), 2);
         // Only the window the handle was given for, and only once.
-        assert!(!a.withdraw_newest(h));
+        assert_eq!(a.withdraw_newest(h), None);
         let h = a.push_window(3.0, 1.0);
         a.push(0.9);
-        assert!(!a.withdraw_newest(h));
+        assert_eq!(a.withdraw_newest(h), None);
         let h = a.push_window(3.0, 1.0);
         assert!(a.merge_newest(h, 2.0, 1.0));
-        assert!(!a.withdraw_newest(h));
+        assert_eq!(a.withdraw_newest(h), None);
         assert_eq!(a.accepted(), 6);
     }
 

@@ -202,7 +202,7 @@ impl Estimator {
                     let h = self.avg.push_window(r2b.to_degrees(), weight);
                     if condition == Condition::DecelBeforeStop {
                         self.open_pair = Some(h);
-                        self.stop_window = Some((h, r2b.to_degrees()));
+                        self.stop_window = Some(h);
                     }
                 }
                 self.last_slope_rad = Some(g.slope_rad);
@@ -366,8 +366,10 @@ impl Estimator {
             return;
         }
         ctx.speed_mismatch = Some((imu_mps, wheel_mps));
-        if let Some((h, value_deg)) = self.stop_window.take()
-            && self.avg.withdraw_newest(h)
+        if let Some(value_deg) = self
+            .stop_window
+            .take()
+            .and_then(|h| self.avg.withdraw_newest(h))
         {
             self.open_pair = None;
             self.shift_run = ShiftRun::default();

@@ -109,9 +109,9 @@ pub struct Estimator {
     /// The deceleration window accepted at the current stop, waiting for the
     /// acceleration window of the same stop to pair with.
     open_pair: Option<PairHandle>,
-    /// The deceleration window of the current stop and its value, deg, until the first
-    /// wheel speed after the drive-off confirms the stop was at rest.
-    stop_window: Option<(PairHandle, f64)>,
+    /// The deceleration window of the current stop, until the first wheel speed after
+    /// the drive-off confirms the stop was at rest.
+    stop_window: Option<PairHandle>,
     baseline_pitch_rad: Option<f64>,
     last_slope_rad: Option<f64>,
     /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
