@@ -529,11 +529,21 @@ impl Estimator {
     /// bias-corrected gyro (eq. 10-11), in either direction.
     pub(super) fn carry(
         &self,
-        mut q: UnitQuaternion<f64>,
+        q: UnitQuaternion<f64>,
         from: usize,
         to: usize,
     ) -> UnitQuaternion<f64> {
-        let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        self.carry_with_bias(q, from, to, self.bias_rps.unwrap_or_else(Vector3::zeros))
+    }
+
+    /// `carry` with a given gyro bias, rad/s.
+    pub(super) fn carry_with_bias(
+        &self,
+        mut q: UnitQuaternion<f64>,
+        from: usize,
+        to: usize,
+        bias: Vector3<f64>,
+    ) -> UnitQuaternion<f64> {
         let step = |q: UnitQuaternion<f64>, i: usize, sign: f64| {
             let (a, b) = (self.hist.get(i), self.hist.get(i + 1));
             if self.turn_unknown_across(&a, &b) {

@@ -107,6 +107,38 @@ const MIN_SETTLED_SAMPLES: u64 = 3;
 /// Hz, damping 0.15-0.25), 4 seeds each, 8 and 12 of 16.
 const THIN_REF_S: f64 = 1.0;
 
+/// A block of settled samples that differed from the stop's reference, waiting for a
+/// second one to confirm a new pitch.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PendingBlock {
+    /// Specific-force sum, m/s^2, and the samples in it.
+    pub(super) sum: Vector3<f64>,
+    pub(super) n: u64,
+    /// Time of its first sample, s.
+    pub(super) t0_s: f64,
+    pub(super) gyro: GyroSum,
+}
+
+/// Sum of gyro readings over quiet samples, rad/s, and their count: their mean is the
+/// gyro's bias at that moment, to the noise over their span.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct GyroSum {
+    pub(super) sum: Vector3<f64>,
+    pub(super) n: u64,
+}
+
+impl GyroSum {
+    pub(super) fn add(&mut self, other: GyroSum) {
+        self.sum += other.sum;
+        self.n += other.n;
+    }
+
+    /// Mean rate, rad/s; `None` without samples.
+    pub(super) fn mean(&self) -> Option<Vector3<f64>> {
+        (self.n > 0).then(|| self.sum / self.n as f64)
+    }
+}
+
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Standstill {
     /// Where the car came to rest (start of the deceleration walk).
@@ -119,6 +151,8 @@ pub(super) struct Standstill {
     pub(super) seg_n: u64,
     pub(super) seg_first_s: f64,
     pub(super) seg_last_s: f64,
+    /// Gyro readings of the segment's blocks (all their quiet samples).
+    pub(super) seg_gyro: GyroSum,
     pub(super) block_sum: Vector3<f64>,
     pub(super) block_n: u64,
     /// Sum and count of the block's samples whose lever-arm motion stayed below
@@ -128,9 +162,8 @@ pub(super) struct Standstill {
     pub(super) block_t0_s: f64,
     /// Time of the newest sample in the block, s.
     pub(super) block_last_s: f64,
-    /// A block that differed from the segment, waiting for a second one to confirm:
-    /// (sum, samples, start time s).
-    pub(super) pending: Option<(Vector3<f64>, u64, f64)>,
+    /// A block that differed from the segment, waiting for a second one to confirm.
+    pub(super) pending: Option<PendingBlock>,
     /// The car drove since the previous standstill.
     pub(super) moved: bool,
     /// The IMU saw the car move in the wheel sensors' dead zone since the previous
@@ -254,9 +287,17 @@ impl Standstill {
     }
     /// Make the settled stretch of `n` samples summing to `sum`, from `first_s` to
     /// `last_s`, the stop's reference in place of the current one.
-    fn restart_segment(&mut self, sum: Vector3<f64>, n: u64, first_s: f64, last_s: f64) {
+    fn restart_segment(
+        &mut self,
+        sum: Vector3<f64>,
+        n: u64,
+        first_s: f64,
+        last_s: f64,
+        gyro: GyroSum,
+    ) {
         self.seg_sum = sum;
         self.seg_n = n;
+        self.seg_gyro = gyro;
         self.seg_first_s = first_s;
         self.seg_last_s = last_s;
     }
@@ -497,6 +538,7 @@ impl Estimator {
             t_braked_s: self.hist.get(braked).t_s,
             seg_sum: Vector3::zeros(),
             seg_n: 0,
+            seg_gyro: GyroSum::default(),
             seg_first_s: t_now,
             seg_last_s: t_now,
             block_sum: Vector3::zeros(),
@@ -633,12 +675,16 @@ impl Estimator {
         let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
         let gyro_mean = st.block_gyro_sum / st.block_n as f64;
         let gyro_n = st.block_n;
+        let gyro = GyroSum {
+            sum: st.block_gyro_sum,
+            n: gyro_n,
+        };
         // Too soon after the stop to teach the bias: the body still swings back.
         let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
         st.clear_block();
         st.block_t0_s = t_s;
         if st.seg_n == 0 {
-            st.restart_segment(block, block_n, block_t0, block_last);
+            st.restart_segment(block, block_n, block_t0, block_last, gyro);
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
@@ -649,6 +695,7 @@ impl Estimator {
         if (bp - sp).abs() <= thr {
             st.seg_sum += block;
             st.seg_n += block_n;
+            st.seg_gyro.add(gyro);
             st.seg_last_s = block_last;
             st.pending = None;
             let joined = *st;
@@ -657,10 +704,11 @@ impl Estimator {
             return;
         }
         match st.pending.take() {
-            Some((psum, pn, pt0))
-                if pitch_from(&(psum / pn as f64))
+            Some(p)
+                if pitch_from(&(p.sum / p.n as f64))
                     .is_some_and(|pp| (pp - bp).abs() <= thr / 2.0) =>
             {
+                let (psum, pn, pt0) = (p.sum, p.n, p.t0_s);
                 // Two blocks agree on a new pitch. A load change turns the body, and the
                 // gyro sees the same turn; a reference taken from a few samples while the
                 // body still swung (its lever-arm motion left in the force) does not.
@@ -668,13 +716,15 @@ impl Estimator {
                 let sf_delta = pitch_from(&new_mean).unwrap_or(bp) - sp;
                 let new_mid = 0.5 * (pt0 + block_last);
                 let reference = *st;
-                let gyro_delta = self.turn_since_reference(&reference, new_mid);
+                let mut after = p.gyro;
+                after.add(gyro);
+                let gyro_delta = self.turn_since_reference(&reference, new_mid, after.mean());
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
                 if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta)) {
                     // The newer stretch is the better reference; the load stays.
-                    st.restart_segment(psum + block, pn + block_n, pt0, block_last);
+                    st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
                     return;
                 }
                 if !st.settled_done {
@@ -685,7 +735,7 @@ impl Estimator {
                     return;
                 };
                 let thin_ref = st.seg_last_s - st.seg_first_s < THIN_REF_S;
-                st.restart_segment(psum + block, pn + block_n, pt0, block_last);
+                st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
                 let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
                 // A reference that spans less than one period of the body's pitch mode
                 // holds the rocking two ways: the force carries the lever arm's
@@ -708,12 +758,16 @@ impl Estimator {
                 if thin {
                     let step = bp - sp;
                     let reference = *st;
-                    let turn = self.turn_since_reference(&reference, 0.5 * (block_t0 + block_last));
+                    let turn = self.turn_since_reference(
+                        &reference,
+                        0.5 * (block_t0 + block_last),
+                        gyro.mean(),
+                    );
                     if turn.is_some_and(|g| !turn_matches(step, g, step)) {
                         let Some(st) = self.standstill.as_mut() else {
                             return;
                         };
-                        st.restart_segment(block, block_n, block_t0, block_last);
+                        st.restart_segment(block, block_n, block_t0, block_last, gyro);
                         st.pending = None;
                         return;
                     }
@@ -721,7 +775,12 @@ impl Estimator {
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
-                st.pending = Some((block, block_n, block_t0));
+                st.pending = Some(PendingBlock {
+                    sum: block,
+                    n: block_n,
+                    t0_s: block_t0,
+                    gyro,
+                });
             }
         }
     }
@@ -762,7 +821,7 @@ impl Estimator {
     /// rest after it (`turn_matches`). rad.
     fn turn_with_rest_force(&self, st: &Standstill, gyro_turn_rad: f64) -> f64 {
         let min_n = self.min_settled();
-        let (mut sum, mut n) = st.pending.map_or((Vector3::zeros(), 0), |(s, n, _)| (s, n));
+        let (mut sum, mut n) = st.pending.map_or((Vector3::zeros(), 0), |p| (p.sum, p.n));
         if st.block_n > 0 {
             let (b_sum, b_n) = st.block_force(min_n);
             sum += b_sum;
@@ -779,12 +838,40 @@ impl Estimator {
         }
     }
 
+    /// The gyro's bias as the quiet samples after a turn at rest show it (the block
+    /// waiting for a second one to confirm a new pitch, and the open block), when they
+    /// span at least `load_block_s`. The learnt bias dates from an earlier stop and has
+    /// drifted since; a turn carried with it over the seconds of a load ramp is off by
+    /// that drift times the ramp's length. rad/s.
+    fn rest_gyro_after_turn(&self, st: &Standstill) -> Option<Vector3<f64>> {
+        let mut g = st.pending.map(|p| p.gyro).unwrap_or_default();
+        g.add(GyroSum {
+            sum: st.block_gyro_sum,
+            n: st.block_n,
+        });
+        (g.n as f64 * self.sample_dt_s.0 >= self.cfg.load_block_s)
+            .then(|| g.mean())
+            .flatten()
+    }
+
     /// Pitch turn the gyro saw from the middle of the stop's reference to `t_s`, rad,
-    /// starting from the attitude of the reference's gravity.
-    fn turn_since_reference(&self, st: &Standstill, t_s: f64) -> Option<f64> {
+    /// starting from the attitude of the reference's gravity. The learnt bias carries
+    /// it to the reference's end; from there `after_bias_rps`, the bias the quiet
+    /// samples after the turn show, when given.
+    fn turn_since_reference(
+        &self,
+        st: &Standstill,
+        t_s: f64,
+        after_bias_rps: Option<Vector3<f64>>,
+    ) -> Option<f64> {
+        let learnt = self.bias_rps.unwrap_or_else(Vector3::zeros);
+        let after = after_bias_rps.unwrap_or(learnt);
         attitude_from_gravity(&st.mean()).map(|q| {
-            let q1 = self.carry(q, self.index_at(st.segment_mid_s()), self.index_at(t_s));
-            pitch_of(&q1) - pitch_of(&q)
+            let (from, to) = (self.index_at(st.segment_mid_s()), self.index_at(t_s));
+            let end = self.index_at(st.seg_last_s).clamp(from.min(to), from.max(to));
+            let q1 = self.carry_with_bias(q, from, end, learnt);
+            let q2 = self.carry_with_bias(q1, end, to, after);
+            pitch_of(&q2) - pitch_of(&q)
         })
     }
 
@@ -936,7 +1023,7 @@ impl Estimator {
     /// load-change threshold (twice: the body may still rock a little at the start).
     fn turn_before_settling(&self, st: &Standstill, settled_pitch_rad: f64) -> Option<f64> {
         let mid = self.index_at(0.5 * (st.seg_first_s + st.seg_last_s));
-        self.turn_since_begin(st, mid, settled_pitch_rad)
+        self.turn_since_begin(st, mid, settled_pitch_rad, st.seg_gyro.mean())
     }
 
     /// A load that turned the body through a whole stop of at least
@@ -954,20 +1041,27 @@ impl Estimator {
         let f = (to + 1 - k..=to).fold(Vector3::zeros(), |f, j| {
             f + self.hist.get(j).acc() - self.lever_acc_at(j)
         });
-        self.turn_since_begin(st, to, pitch_from(&(f / k as f64))?)
+        self.turn_since_begin(st, to, pitch_from(&(f / k as f64))?, None)
     }
 
     /// The gyro's turn of the body from the start of the standstill to history sample
     /// `to`, rad, when the force's pitch there (`force_pitch_rad`) moved with it by at
     /// least twice the load-change threshold (twice: the body may still rock a little at
     /// the start).
-    fn turn_since_begin(&self, st: &Standstill, to: usize, force_pitch_rad: f64) -> Option<f64> {
+    fn turn_since_begin(
+        &self,
+        st: &Standstill,
+        to: usize,
+        force_pitch_rad: f64,
+        bias_rps: Option<Vector3<f64>>,
+    ) -> Option<f64> {
         let (q_begin, from) = self.begin_attitude(st)?;
         let to = to.min(self.hist.len() - 1);
         if to <= from {
             return None;
         }
-        let turn = pitch_of(&self.carry(q_begin, from, to)) - pitch_of(&q_begin);
+        let bias = bias_rps.or(self.bias_rps).unwrap_or_else(Vector3::zeros);
+        let turn = pitch_of(&self.carry_with_bias(q_begin, from, to, bias)) - pitch_of(&q_begin);
         let sf = force_pitch_rad - pitch_of(&q_begin);
         self.turn_since_begin_agrees(turn, sf).then_some(turn)
     }
@@ -1203,7 +1297,12 @@ impl Estimator {
         // rest after the turn.
         let imu_pitch_rad = pitch_of(&q_ref);
         if settled && live_active {
-            let delta = self.turn_with_rest_force(&st, pitch_of(&q0) - imu_pitch_rad);
+            let seg_last = self.index_at(st.seg_last_s).min(n - 1);
+            let turn = match self.rest_gyro_after_turn(&st) {
+                Some(bias) => pitch_of(&self.carry_with_bias(q_ref, seg_last, first, bias)),
+                None => pitch_of(&q0),
+            } - imu_pitch_rad;
+            let delta = self.turn_with_rest_force(&st, turn);
             let turned_pitch = imu_pitch_rad + delta;
             if delta.abs() > self.cfg.load_change_deg.to_radians() {
                 self.apply_load_change(delta, turned_pitch, t_now, emit);
