@@ -868,7 +868,9 @@ impl Estimator {
         let after = after_bias_rps.unwrap_or(learnt);
         attitude_from_gravity(&st.mean()).map(|q| {
             let (from, to) = (self.index_at(st.segment_mid_s()), self.index_at(t_s));
-            let end = self.index_at(st.seg_last_s).clamp(from.min(to), from.max(to));
+            let end = self
+                .index_at(st.seg_last_s)
+                .clamp(from.min(to), from.max(to));
             let q1 = self.carry_with_bias(q, from, end, learnt);
             let q2 = self.carry_with_bias(q1, end, to, after);
             pitch_of(&q2) - pitch_of(&q)
