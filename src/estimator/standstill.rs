@@ -264,6 +264,13 @@ pub(super) struct BeginPitch {
 }
 
 impl Standstill {
+    /// Gyro readings of every sample of the current block.
+    fn block_gyro(&self) -> GyroSum {
+        GyroSum {
+            sum: self.block_gyro_sum,
+            n: self.block_n,
+        }
+    }
     /// Force sum and sample count the current block stands for: its calm samples when
     /// at least a quarter of them (and `min_n`) are calm, else all.
     pub(super) fn block_force(&self, min_n: u64) -> (Vector3<f64>, u64) {
@@ -673,12 +680,8 @@ impl Estimator {
         }
         let (block, block_n) = st.block_force(min_n);
         let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
-        let gyro_mean = st.block_gyro_sum / st.block_n as f64;
-        let gyro_n = st.block_n;
-        let gyro = GyroSum {
-            sum: st.block_gyro_sum,
-            n: gyro_n,
-        };
+        let gyro = st.block_gyro();
+        let (gyro_mean, gyro_n) = (gyro.sum / gyro.n as f64, gyro.n);
         // Too soon after the stop to teach the bias: the body still swings back.
         let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
         st.clear_block();
@@ -845,10 +848,7 @@ impl Estimator {
     /// that drift times the ramp's length. rad/s.
     fn rest_gyro_after_turn(&self, st: &Standstill) -> Option<Vector3<f64>> {
         let mut g = st.pending.map(|p| p.gyro).unwrap_or_default();
-        g.add(GyroSum {
-            sum: st.block_gyro_sum,
-            n: st.block_n,
-        });
+        g.add(st.block_gyro());
         (g.n as f64 * self.sample_dt_s.0 >= self.cfg.load_block_s)
             .then(|| g.mean())
             .flatten()
