@@ -63,6 +63,17 @@ sens() {
         "realistic.pitch_per_accel_deg=[0.4, 0.5]"
     sens "stop-and-go, body pitching 0.4-0.5 deg per m/s^2 (a soft SUV)" stop-and-go \
         "realistic.pitch_per_accel_deg=[0.4, 0.5]"
+    sens "urban, stiff suspension (pitch 1.6-1.9 Hz, damping 0.3-0.5, 0.08-0.15 deg per m/s^2)" \
+        urban "realistic.pitch_freq_hz=[1.6, 1.9]" "realistic.pitch_damping=[0.3, 0.5]" \
+        "realistic.pitch_per_accel_deg=[0.08, 0.15]"
+    sens "urban, every drive-off gentle (0.3-0.6 m/s^2)" urban realistic.gentle_start_share=1.0
+    sens "hilly, every drive-off gentle (0.3-0.6 m/s^2)" hilly realistic.gentle_start_share=1.0
+    sens "stop-and-go, every drive-off gentle (0.3-0.6 m/s^2)" stop-and-go \
+        realistic.gentle_start_share=1.0
+    sens "urban, INS-grade IMU and every drive-off gentle" urban \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        realistic.gentle_start_share=1.0
     sens "urban, engine idling (0.2 m/s^2 rms at 25 Hz)" urban realistic.idle_vibration_mps2=0.2
     sens "stop-and-go, engine idling (0.2 m/s^2 rms at 25 Hz)" stop-and-go \
         realistic.idle_vibration_mps2=0.2

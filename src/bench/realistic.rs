@@ -1,7 +1,7 @@
 //! The `realistic` scenario family: drives with the physics that real cars and other
 //! vehicle models show and that the estimator must not be fooled by. Every effect is an
 //! option of the `[realistic]` table of a scenario file; each is on by default there.
-//! README ("Realistic drives") states how each was sized.
+//! README ("Realistic drives") and docs/accuracy.md (section 3) state how each was sized.
 
 use super::suite::DriveSpec;
 use crate::sim::noise::Gauss;
