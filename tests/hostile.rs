@@ -239,6 +239,25 @@ fn check_config_refuses_values_that_break_the_daemon() {
         let e = config_error(&|t| set(t, section, line));
         assert!(e.contains(field), "{line}: {e:?}");
     }
+    // The shipped file sets the vehicle's geometry; a wheelbase or pitch centre that no
+    // car has is refused by name.
+    for (from, to, field) in [
+        ("wheelbase_m = 2.7", "wheelbase_m = 0.0", "wheelbase_m"),
+        ("wheelbase_m = 2.7", "wheelbase_m = nan", "wheelbase_m"),
+        (
+            "pitch_centre_share = 0.5",
+            "pitch_centre_share = 1.5",
+            "pitch_centre_share",
+        ),
+    ] {
+        assert!(
+            std::fs::read_to_string(root().join("config/leveld.toml"))
+                .unwrap()
+                .contains(from)
+        );
+        let e = config_error(&|t| t.replacen(from, to, 1));
+        assert!(e.contains(field), "{to}: {e:?}");
+    }
     for kind in ["none", "hyundai_whl_spd"] {
         let e = config_error(&|t| {
             let (head, out) = t.split_at(t.find("[output]").unwrap());

@@ -123,6 +123,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         correct_grade_pitch: false,
         ..d()
     };
+    let no_axle = EstimatorConfig {
+        axle_chord: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -178,6 +182,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(short_windows, "2-m-windows")),
         Box::new(Leveld::new(no_fallback, "no-half-windows")),
         Box::new(Leveld::new(no_grade, "no-grade-pitch")),
+        Box::new(Leveld::new(no_axle, "no-axle-chord")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]

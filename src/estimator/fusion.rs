@@ -145,6 +145,11 @@ impl Estimator {
             velocity_free: c.velocity_free_slope && !self.quiet_accelerometer(),
             velocity_free_max_chord_m: c.velocity_free_max_chord_m,
             short_share: c.short_window_share,
+            axle_m: if c.axle_chord && self.quiet_accelerometer() {
+                c.wheelbase_m
+            } else {
+                0.0
+            },
         }
     }
 
@@ -171,7 +176,10 @@ impl Estimator {
         emit: &mut dyn FnMut(Event),
     ) {
         match r {
-            Ok(g) => {
+            Ok(mut g) => {
+                if let Some(slope_rad) = self.axle_slope_rad(&g, condition, imu_pitch_rad) {
+                    g.slope_rad = slope_rad;
+                }
                 let r2b = imu_pitch_rad - g.slope_rad + self.lane_roll_pitch_rad(&g)
                     - self.grade_pitch_rad(&g, condition, imu_pitch_rad);
                 if let Some((delta, new_pitch)) = self.pending_load.take() {
@@ -269,6 +277,38 @@ impl Estimator {
             .travel_yaw_rad
             .clamp(-MAX_TRAVEL_YAW_RAD, MAX_TRAVEL_YAW_RAD);
         yaw * (roll - floor_roll)
+    }
+
+    /// The slope of the line through the contact points the body stood on at rest,
+    /// rad, from the walk one wheelbase out (`window::AxlePoint`); `None` where the
+    /// window's own slope stays.
+    ///
+    /// The body's pitch at rest is the chord between its axles plus the load's pitch.
+    /// The window's slope is the road's over a few metres ahead or behind, and the two
+    /// differ where the road is not one plane: the unevenness under the axles (about
+    /// 0.08 deg rms on ordinary asphalt) and a vertical curve. One wheelbase out, the
+    /// rear wheels stand where the front ones stood (the front where the rear stood,
+    /// walking back), and their height there is the pitch centre's less the
+    /// wheelbase's share behind (ahead of) it times the road's pitch of the body
+    /// there: the gyro's turn from rest less the pitch the acceleration gave it, from
+    /// the learnt pitch per m/s^2. Until that is learnt (the first braking), none.
+    fn axle_slope_rad(
+        &self,
+        g: &window::WindowGeometry,
+        condition: Condition,
+        imu_pitch_rad: f64,
+    ) -> Option<f64> {
+        let p = g.axle?;
+        let per_force = self.grade.per_force_rad();
+        if !self.cfg.correct_grade_pitch || per_force <= 0.0 {
+            return None;
+        }
+        let share = match condition {
+            Condition::AccelAfterStop => self.cfg.pitch_centre_share,
+            Condition::DecelBeforeStop => 1.0 - self.cfg.pitch_centre_share,
+        };
+        let road_turn = (p.pitch_rad - imu_pitch_rad) - per_force * p.accel_mps2;
+        Some(p.slope_rad - share * road_turn)
     }
 
     /// The pitch the body had at rest on the window's grade beyond its pitch on level
@@ -406,6 +446,7 @@ mod tests {
             mean_accel_mps2: 0.0,
             travel_yaw_rad: 0.0,
             start_up_y: 0.0,
+            axle: None,
         };
         let mut shift = None;
         let imu = value_deg.to_radians();

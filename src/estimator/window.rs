@@ -66,6 +66,9 @@ pub struct WindowSetup {
     /// distance, checked over its own length against the chord limits times the square
     /// of the share (0 turns the fallback off).
     pub short_share: f64,
+    /// The walk notes where the pitch centre has gone this far, the wheelbase, m (see
+    /// `AxlePoint`); 0 notes nothing.
+    pub axle_m: f64,
 }
 
 /// Geometry of a completed window.
@@ -93,7 +96,31 @@ pub struct WindowGeometry {
     /// The y component of up in the IMU's frame at the walk's start: the sine of the
     /// elevation of the IMU's y axis (its roll), with `setup.acc_bias_mps2` taken out.
     pub start_up_y: f64,
+    /// Where the walk had gone one wheelbase, on a window whose slope is the chord.
+    pub axle: Option<AxlePoint>,
 }
+
+/// The walk one wheelbase from rest. Forward, the rear wheels stand there where the
+/// front wheels stood at rest; backward, the front wheels where the rear ones stood.
+/// With the body's pitch there, this gives the height between the contact points the
+/// body stood on at rest, which the window's slope over a road that is not one plane
+/// (its unevenness, a vertical curve) does not.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxlePoint {
+    /// Slope of the chord from rest to there, of the pitch centre's path, rad,
+    /// positive rising ahead.
+    pub slope_rad: f64,
+    /// The body's pitch there (gyro-carried from the walk's start), rad.
+    pub pitch_rad: f64,
+    /// Acceleration along the start heading there, low-passed, m/s^2 (negative while
+    /// braking, in either walk direction).
+    pub accel_mps2: f64,
+}
+
+/// Time constant of the acceleration noted at the axle point, s: about the lag of a
+/// body's pitch answer to its acceleration (1.2-1.5 Hz, damping 0.2-0.4), and it
+/// passes a tenth of the 9-14 Hz structural vibration.
+const AXLE_ACCEL_TAU_S: f64 = 0.1;
 
 /// Outcome of feeding a sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -142,6 +169,10 @@ pub struct WindowIntegrator {
     /// its value when `distance_m` was reached.
     body_path: (f64, f64),
     body_path_at_distance: (f64, f64),
+    /// Low-passed acceleration along `heading`, m/s^2, and the walk's state when it
+    /// had gone `setup.axle_m`: (height, length, pitch, acceleration).
+    accel_lp: f64,
+    axle: Option<(f64, f64, f64, f64)>,
     active: bool,
 }
 
@@ -165,6 +196,7 @@ impl WindowIntegrator {
                 velocity_free: true,
                 velocity_free_max_chord_m: 0.006,
                 short_share: 0.0,
+                axle_m: 0.0,
             },
             q: UnitQuaternion::identity(),
             v: Vector3::zeros(),
@@ -190,6 +222,8 @@ impl WindowIntegrator {
             short: None,
             body_path: (0.0, 0.0),
             body_path_at_distance: (0.0, 0.0),
+            accel_lp: 0.0,
+            axle: None,
             active: false,
         }
     }
@@ -225,6 +259,8 @@ impl WindowIntegrator {
         self.short = None;
         self.body_path = (0.0, 0.0);
         self.body_path_at_distance = (0.0, 0.0);
+        self.accel_lp = 0.0;
+        self.axle = None;
         self.active = true;
     }
 
@@ -303,6 +339,11 @@ impl WindowIntegrator {
         self.int_pitch += 0.5 * (self.last_pitch + pitch) * dt.abs();
         self.last_pitch = pitch;
         self.int_accel += 0.5 * (along(a0) + along(a1)) * dt.abs();
+        self.accel_lp += (dt.abs() / AXLE_ACCEL_TAU_S).min(1.0) * (along(a1) - self.accel_lp);
+        if self.axle.is_none() && self.setup.axle_m > 0.0 && self.horizontal_m >= self.setup.axle_m
+        {
+            self.axle = Some((corrected.z, self.horizontal_m, pitch, self.accel_lp));
+        }
         // Weights t (T - t) on the acceleration, moved onto the positions: the velocity
         // the walk started with drops out.
         let fit = || {
@@ -430,10 +471,12 @@ impl WindowIntegrator {
         }
         // A path bent by more than `velocity_free_max_chord_m` may hold a grade change,
         // which the velocity-free fit would partly read as a start velocity.
-        let slope_rad = match w.fit_slope {
-            Some(f) if s.velocity_free && dev <= s.velocity_free_max_chord_m * w.limit_share => f,
-            _ => slope_rad,
-        };
+        let fit = w
+            .fit_slope
+            .filter(|_| s.velocity_free && dev <= s.velocity_free_max_chord_m * w.limit_share);
+        // The axle point is a chord too, from the same rest.
+        let axle = self.axle.filter(|_| fit.is_none());
+        let slope_rad = fit.unwrap_or(slope_rad);
         let per_s = 1.0 / w.duration_s.max(1e-9);
         Ok(WindowGeometry {
             slope_rad,
@@ -448,6 +491,11 @@ impl WindowIntegrator {
             // A backward walk goes tail-first: its path points against the travel.
             travel_yaw_rad: (sign * w.body_path.1).atan2(sign * w.body_path.0),
             start_up_y: (s.q0.inverse() * Vector3::z()).y,
+            axle: axle.map(|(z, len, pitch_rad, accel_mps2)| AxlePoint {
+                slope_rad: (sign * z).atan2(len),
+                pitch_rad,
+                accel_mps2,
+            }),
         })
     }
 }
@@ -494,6 +542,55 @@ mod tests {
             velocity_free: true,
             velocity_free_max_chord_m: 0.006,
             short_share: 0.0,
+            axle_m: 0.0,
+        }
+    }
+
+    /// On one plane the axle point is the road's slope, the body has not turned, and
+    /// the acceleration there is the walk's along its level heading; a window that
+    /// keeps the velocity-free slope notes none.
+    #[test]
+    fn the_axle_point_is_noted_one_wheelbase_out_on_a_chord_window() {
+        let (slope, mount, a) = (4.0_f64.to_radians(), 0.7_f64.to_radians(), 1.5);
+        let q0 = attitude_from_gravity(&specific_force(slope, mount, 0.0)).unwrap();
+        for velocity_free in [false, true] {
+            let mut w = WindowIntegrator::with_capacity(2000);
+            let setup = WindowSetup {
+                axle_m: 1.5,
+                velocity_free,
+                ..setup(q0)
+            };
+            w.start(setup, Vector3::zeros());
+            let mut out = None;
+            for k in 0..1000 {
+                let s = ImuSample::new(
+                    k as f64 * 0.01,
+                    specific_force(slope, mount, a).into(),
+                    [0.0; 3],
+                );
+                if let Step::Done(r) = w.push(&s) {
+                    out = Some(r.unwrap());
+                    break;
+                }
+            }
+            let g = out.expect("window must complete");
+            if velocity_free {
+                assert_eq!(g.axle, None);
+                continue;
+            }
+            let p = g.axle.expect("a chord window notes its axle point");
+            assert!(
+                (p.slope_rad - slope).abs() < 1e-6,
+                "{} deg",
+                p.slope_rad.to_degrees()
+            );
+            assert!((p.pitch_rad - pitch_of(&q0)).abs() < 1e-9);
+            // Along the level heading, as the grade's pitch is learnt.
+            assert!(
+                (p.accel_mps2 - a * slope.cos()).abs() < 1e-6,
+                "{} m/s^2",
+                p.accel_mps2
+            );
         }
     }
 
