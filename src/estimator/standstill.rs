@@ -4,7 +4,7 @@
 use super::attitude::{attitude_from_gravity, pitch_of};
 use super::gravity::pitch_from;
 use super::motion::MotionTracker;
-use super::window::{RejectReason, Step};
+use super::window::{RejectReason, Step, WindowGeometry};
 use super::{Condition, Estimator, Event, ImuSample};
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -938,6 +938,9 @@ impl Estimator {
             return;
         };
         let pitch = pitch_of(&q_ref);
+        // A load that came in before the reference settled turned the body between the
+        // rest edge and the reference.
+        let mut load_before_settled = st.turn_applied;
         // Stopped or parked without driving since the last baseline: a pitch step is a load change.
         match self.baseline_pitch_rad {
             Some(base) if !st.moved && !st.crept => {
@@ -962,6 +965,7 @@ impl Estimator {
                     && let Some(turn) = self.turn_before_settling(&st, pitch)
                 {
                     self.apply_load_change(turn, pitch, t_now, emit);
+                    load_before_settled = true;
                 }
                 self.baseline_pitch_rad = Some(pitch);
             }
@@ -1013,6 +1017,15 @@ impl Estimator {
             },
         };
         let pitch_win = pitch_of(&q_win);
+        // The axle point's pitch is carried from the rest edge; against a reference
+        // taken after a load it would read the load's turn as the road's.
+        let r = r.map(|g| {
+            if load_before_settled {
+                WindowGeometry { axle: None, ..g }
+            } else {
+                g
+            }
+        });
         let times = (st.t_rest_s, st.segment_mid_s());
         self.report_window_weighted(r, Condition::DecelBeforeStop, pitch_win, times, 1.0, emit);
     }
