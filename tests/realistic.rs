@@ -88,6 +88,30 @@ fn gentle() -> RealisticSpec {
     }
 }
 
+/// An INS-grade IMU: 30 ug/sqrt(Hz), gyro 0.003 deg/s/sqrt(Hz), little drift.
+fn ins_grade(x: &mut Sensors) {
+    x.acc_noise_ug_rthz = 30.0;
+    x.acc_bias_walk_mps2_rts = 0.0001;
+    x.gyro_noise_dps_rthz = 0.003;
+    x.gyro_bias_walk_dps_rts = 0.0005;
+}
+
+/// Root mean square of window errors, deg.
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+/// Loads that start to come in about a second into a stop of its full length, with a
+/// door shock at every stop: on some stops nothing settles before the ramp.
+fn early_ramp_with_shocks() -> RealisticSpec {
+    RealisticSpec {
+        load_stop_short_share: 0.0,
+        load_change_delay_s: [0.8, 1.2],
+        door_shock_share: 1.0,
+        ..gentle()
+    }
+}
+
 /// The family with every drive-off brisk, no rolling stop and no stop too short to settle.
 fn brisk() -> RealisticSpec {
     RealisticSpec {
@@ -949,12 +973,7 @@ fn a_load_ramping_in_before_the_stop_settles_is_found_at_that_stop() {
     // door shock: on some stops the samples do not settle before the ramp, so neither
     // the settled blocks nor the live pitch have a reference from before it. The gyro
     // saw the whole turn from the start of the standstill.
-    let r = RealisticSpec {
-        load_stop_short_share: 0.0,
-        load_change_delay_s: [0.8, 1.2],
-        door_shock_share: 1.0,
-        ..gentle()
-    };
+    let r = early_ramp_with_shocks();
     let mut found = Vec::new();
     let mut after_ramp = Vec::new();
     for seed in 51..59 {
@@ -1030,23 +1049,12 @@ fn a_load_ramping_in_before_the_stop_settles_is_found_at_that_stop() {
 /// door shock and the ramp; with the axle point against that reference, 0.77-0.83.
 #[test]
 fn a_load_before_the_stop_settles_is_not_read_as_the_roads_pitch_between_the_axles() {
-    let r = RealisticSpec {
-        load_stop_short_share: 0.0,
-        load_change_delay_s: [0.8, 1.2],
-        door_shock_share: 1.0,
-        ..gentle()
-    };
-    let ins = |x: &mut Sensors| {
-        x.acc_noise_ug_rthz = 30.0;
-        x.acc_bias_walk_mps2_rts = 0.0001;
-        x.gyro_noise_dps_rthz = 0.003;
-        x.gyro_bias_walk_dps_rts = 0.0005;
-    };
+    let r = early_ramp_with_shocks();
     let mut after_ramp = Vec::new();
     for seed in 51..59 {
         let mut s = spec(seed, 6, r.clone());
         s.load_change_at_stop = Some(3);
-        let s = with_sensors(s, ins);
+        let s = with_sensors(s, ins_grade);
         let case = &s.cases()[1];
         let t_stop = case.plan.as_ref().unwrap().stops[3].0;
         let drive = simulate(&case.scenario);
@@ -1606,14 +1614,10 @@ fn windows_with_imu(sensors: impl Fn(&mut Sensors) + Copy, chord_below_ug: f64) 
 /// window. Measured: rms 0.163 deg with the chord against 0.183 velocity-free.
 #[test]
 fn a_quiet_accelerometer_takes_the_chords_slope() {
-    let ins = |x: &mut Sensors| {
-        x.acc_noise_ug_rthz = 30.0;
-        x.acc_bias_walk_mps2_rts = 0.0001;
-        x.gyro_noise_dps_rthz = 0.003;
-        x.gyro_bias_walk_dps_rts = 0.0005;
-    };
-    let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let (chord, free) = (windows_with_imu(ins, 150.0), windows_with_imu(ins, 0.0));
+    let (chord, free) = (
+        windows_with_imu(ins_grade, 150.0),
+        windows_with_imu(ins_grade, 0.0),
+    );
     eprintln!(
         "INS-grade: rms {:.3} deg chord ({} windows), {:.3} velocity-free ({})",
         rms(&chord),
@@ -1646,19 +1650,13 @@ fn a_quiet_accelerometer_takes_the_chords_slope() {
 /// scenario, 1P, INS-grade unit): 226 windows, rms 0.134 deg with it, 0.157 without.
 #[test]
 fn a_chord_window_measures_the_road_between_the_axles_the_body_stood_on() {
-    let ins = |x: &mut Sensors| {
-        x.acc_noise_ug_rthz = 30.0;
-        x.acc_bias_walk_mps2_rts = 0.0001;
-        x.gyro_noise_dps_rthz = 0.003;
-        x.gyro_bias_walk_dps_rts = 0.0005;
-    };
     let errs = |axle_chord: bool| {
         let mut errs = Vec::new();
         for file in ["urban", "hilly", "stop-and-go", "bumpy"] {
             let mut s = DriveSpec::parse(&shipped(file)).unwrap();
             for seed in [s.seed, s.seed + 1] {
                 s.seed = seed;
-                let case: Case = with_sensors(s.clone(), ins).cases().remove(0);
+                let case: Case = with_sensors(s.clone(), ins_grade).cases().remove(0);
                 let cfg = EstimatorConfig {
                     axle_chord,
                     ..EstimatorConfig::default()
@@ -1668,7 +1666,6 @@ fn a_chord_window_measures_the_road_between_the_axles_the_body_stood_on() {
         }
         errs
     };
-    let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let (on, off) = (errs(true), errs(false));
     eprintln!(
         "INS-grade: rms {:.3} deg between the axles ({} windows), {:.3} over the window ({})",

@@ -37,7 +37,9 @@ pub struct WindowReport {
     pub condition: Condition,
     /// IMU pitch at the stop from gravity (eq. 9), deg.
     pub imu_pitch_deg: f64,
-    /// Road slope along body x over the window (eq. 14), deg, positive rising ahead.
+    /// Road slope along body x over the window (eq. 14), deg, positive rising ahead;
+    /// with a quiet accelerometer, of the line between the contact points the body
+    /// stood on at rest (`axle_chord`).
     pub road_slope_deg: f64,
     /// imu_pitch - road_slope (eq. 16), less the pitch the body had at rest on that
     /// slope beyond its pitch on level ground (`correct_grade_pitch`), deg.
