@@ -492,10 +492,12 @@ fn a_rolling_stop_taken_for_rest_has_its_window_withdrawn_at_the_first_wheel_spe
                     estimate,
                     ..
                 } if near(*t_s) => {
-                    assert_eq!(
-                        taken.take(),
-                        Some(*road_to_body_deg),
-                        "withdrew another window"
+                    // The same window: its grade's pitch is taken out with the share
+                    // fitted now, which that window itself moved by a hair.
+                    let taken = taken.take().expect("a window accepted at this stop");
+                    assert!(
+                        (taken - road_to_body_deg).abs() < 1e-3,
+                        "withdrew another window: {road_to_body_deg} for {taken}"
                     );
                     let after = estimate.map(|e| e.road_to_body_deg);
                     current = after;
@@ -1905,4 +1907,55 @@ fn a_load_step_is_carried_with_the_gyro_bias_of_the_rest_after_it() {
     let (a, b) = (within(&family), within(&drifting));
     assert!(a >= 22 && b >= 22, "within 0.1 deg: {a} and {b} of 24");
     assert!(b + 1 >= a, "a drifting gyro lost steps: {a} -> {b} of 24");
+}
+
+/// The grade share leveld fits by the end of each of the first eight hilly drives (1P),
+/// for a body that pitches on a grade as under braking or one that stands on every
+/// grade as on level ground.
+fn hilly_grade_shares(pitch_from_grade: bool) -> Vec<f64> {
+    let text = shipped("hilly");
+    let specs: Vec<DriveSpec> = (0..8)
+        .map(|i| {
+            let mut s = DriveSpec::parse(&text).unwrap();
+            s.seed += i;
+            s.realistic.as_mut().unwrap().pitch_from_grade = pitch_from_grade;
+            s
+        })
+        .collect();
+    std::thread::scope(|sc| {
+        let hs: Vec<_> = specs
+            .iter()
+            .map(|s| {
+                sc.spawn(move || {
+                    let drive = simulate(&s.cases()[0].scenario);
+                    let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+                    for input in drive.merged() {
+                        match input {
+                            Input::Imu(x) => est.push_imu(x, &mut |_| {}),
+                            Input::Wheels(w) => est.push_wheels(w, &mut |_| {}),
+                        }
+                    }
+                    est.grade_share()
+                })
+            })
+            .collect();
+        hs.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+#[test]
+fn stops_at_different_grades_tell_whether_the_body_pitches_on_a_grade() {
+    // Held by its brakes, a body dives or squats on a grade as under braking (share 1);
+    // a vehicle model without that stands on every grade as on level ground (share 0),
+    // and taking the braking pitch out there would add 0.2-0.4 deg to each window on
+    // a 10-15 % grade. Each hilly drive has 16-26 windows at grades to 15 %; the share
+    // they fit scatters about 0.2 per drive (measured: means 0.18 and 0.91).
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (none, full) = (hilly_grade_shares(false), hilly_grade_shares(true));
+    eprintln!("without grade pitch {none:.2?}, with {full:.2?}");
+    assert!(mean(&none) < 0.4, "a body level on every grade: {none:.2?}");
+    assert!(
+        mean(&full) > 0.7,
+        "a body that pitches on grades: {full:.2?}"
+    );
 }

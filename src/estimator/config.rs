@@ -221,7 +221,8 @@ pub struct EstimatorConfig {
     /// Take out of each window the pitch the body has at rest on its grade
     /// (`estimator/grade.rs`): the brakes hold gravity's share along the road and the
     /// body dives or squats under it as under braking. Its pitch per m/s^2 is learnt
-    /// from the deceleration windows.
+    /// from the deceleration windows, and the share of it the body shows at rest from
+    /// stops at different grades (1 until they tell).
     pub correct_grade_pitch: bool,
     /// How windows are combined.
     pub averaging: Averaging,

@@ -42,7 +42,8 @@ pub struct WindowReport {
     /// stood on at rest (`axle_chord`).
     pub road_slope_deg: f64,
     /// imu_pitch - road_slope (eq. 16), less the pitch the body had at rest on that
-    /// slope beyond its pitch on level ground (`correct_grade_pitch`), deg.
+    /// slope beyond its pitch on level ground as fitted when the window came
+    /// (`correct_grade_pitch`), deg.
     pub road_to_body_deg: f64,
     pub distance_m: f64,
     pub duration_s: f64,
@@ -107,7 +108,8 @@ pub enum Event {
     /// window taken from that standstill is taken back out of the estimate.
     WindowWithdrawn {
         t_s: f64,
-        /// The withdrawn window's value, deg.
+        /// The withdrawn window's value, deg (its grade's pitch taken out with the
+        /// share fitted when it is withdrawn).
         road_to_body_deg: f64,
         imu_mps: f64,
         wheel_mps: f64,

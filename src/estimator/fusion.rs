@@ -180,8 +180,11 @@ impl Estimator {
                 if let Some(slope_rad) = self.axle_slope_rad(&g, condition, imu_pitch_rad) {
                     g.slope_rad = slope_rad;
                 }
-                let r2b = imu_pitch_rad - g.slope_rad + self.lane_roll_pitch_rad(&g)
-                    - self.grade_pitch_rad(&g, condition, imu_pitch_rad);
+                // As measured, with the body's pitch on the stop's grade still in it;
+                // the average takes that out with the share it fits (`GradeShare`).
+                let measured = imu_pitch_rad - g.slope_rad + self.lane_roll_pitch_rad(&g);
+                let pull = self.grade_pull_mps2(&g, condition, imu_pitch_rad);
+                let r2b = measured - self.avg.grade_pitch_deg(pull).to_radians();
                 if let Some((delta, new_pitch)) = self.pending_load.take() {
                     // Keep the suspected load change only if this window agrees with it.
                     let shifted_closer = self.estimate.is_none_or(|e| {
@@ -204,10 +207,12 @@ impl Estimator {
                 let open_pair = self.open_pair.take();
                 let paired = condition == Condition::AccelAfterStop
                     && self.cfg.pair_stop_windows
-                    && open_pair
-                        .is_some_and(|h| self.avg.merge_newest(h, r2b.to_degrees(), weight));
+                    && open_pair.is_some_and(|h| {
+                        self.avg
+                            .merge_newest(h, measured.to_degrees(), weight, pull)
+                    });
                 if !paired {
-                    let h = self.avg.push_window(r2b.to_degrees(), weight);
+                    let h = self.avg.push_on_grade(measured.to_degrees(), weight, pull);
                     if condition == Condition::DecelBeforeStop {
                         self.open_pair = Some(h);
                         self.stop_window = Some(h);
@@ -311,10 +316,12 @@ impl Estimator {
         Some(p.slope_rad - share * road_turn)
     }
 
-    /// The pitch the body had at rest on the window's grade beyond its pitch on level
-    /// ground, rad (`estimator/grade.rs`). A deceleration window first teaches the
-    /// body's dive under braking: its mean pitch against the reference at rest.
-    fn grade_pitch_rad(
+    /// The pull of the window's grade along the road at its stop, g sin(slope), m/s^2
+    /// (0 with `correct_grade_pitch` off): the body dives or squats under it as under
+    /// braking (`estimator/grade.rs`), by the share of that the average fits. A
+    /// deceleration window first teaches the body's dive under braking: its mean pitch
+    /// against the reference at rest.
+    fn grade_pull_mps2(
         &mut self,
         g: &window::WindowGeometry,
         condition: Condition,
@@ -327,9 +334,9 @@ impl Estimator {
             self.grade
                 .learn(g.mean_accel_mps2, g.mean_pitch_rad - imu_pitch_rad);
         }
-        // The grade's share of standard gravity along the road pitches the body.
-        self.grade
-            .at_rest_rad(g.slope_rad, super::STANDARD_GRAVITY_MPS2)
+        self.avg
+            .set_pitch_per_force(self.grade.per_force_rad().to_degrees());
+        super::STANDARD_GRAVITY_MPS2 * g.slope_rad.sin()
     }
 
     pub(super) fn refresh_estimate(&mut self) {

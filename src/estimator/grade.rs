@@ -12,6 +12,13 @@
 //! body is dived by k times the braking, and the gyro carries that against the settled
 //! reference. Braking, not pulling away, because a car held on a grade is held by its
 //! brakes, and anti-dive geometry makes the two differ on many cars.
+//!
+//! Whether the body shows all of k g sin(grade) at rest is left to the windows: the
+//! average fits the share of it (`average.rs`, `GradeShare`) with the load's pitch,
+//! from stops at different grades. A car held by its foot brake shows all of it; one
+//! held on a parking brake of one axle, or a vehicle model whose body stands on every
+//! grade as on level ground, shows less or none, and taking the whole of it out would
+//! add k g sin(grade) to every window there (0.2 deg on a 10 % grade).
 
 use serde::{Deserialize, Serialize};
 
@@ -64,12 +71,6 @@ impl GradePitch {
     pub fn per_force_rad(&self) -> f64 {
         (self.sum_ap / (self.sum_aa + PRIOR_WEIGHT_MPS2_SQ)).clamp(0.0, MAX_PER_FORCE_RAD)
     }
-
-    /// The pitch a body at rest on a road of `slope_rad` (positive rising ahead) has
-    /// beyond its pitch on level ground, rad.
-    pub fn at_rest_rad(&self, slope_rad: f64, gravity_mps2: f64) -> f64 {
-        self.per_force_rad() * gravity_mps2 * slope_rad.sin()
-    }
 }
 
 #[cfg(test)]
@@ -92,10 +93,6 @@ mod tests {
         let k = g.per_force_rad() / DEG;
         // The prior still holds k back by a percent.
         assert!((k - 0.25).abs() < 0.01, "{k}");
-        // At rest facing up a 10 % grade: the squat of pulling away at 0.98 m/s^2.
-        let squat = g.at_rest_rad((0.1f64).atan(), 9.81) / DEG;
-        assert!((squat - 0.245).abs() < 0.01, "{squat}");
-        assert!(g.at_rest_rad(0.0, 9.81).abs() < 1e-12);
     }
 
     #[test]

@@ -217,6 +217,12 @@ impl Estimator {
         self.grade.per_force_rad().to_degrees()
     }
 
+    /// The share of its braking pitch the body shows standing on a grade, as the
+    /// windows so far fit it (1 before they tell; `estimator/average.rs`, `GradeShare`).
+    pub fn grade_share(&mut self) -> f64 {
+        self.avg.share()
+    }
+
     /// Road slope of the last accepted window, deg.
     pub fn last_road_slope_deg(&self) -> Option<f64> {
         self.last_slope_rad.map(f64::to_degrees)

@@ -109,6 +109,7 @@ impl Estimator {
             }
             // Carry the stored evidence as a prior worth its full weight.
             avg.restore_prior(c.value_deg, c.weight, stored.accepted());
+            avg.keep_grade_of(&mut stored);
         }
         self.avg = avg;
         self.bias_rps = st
