@@ -19,6 +19,16 @@ use serde::Serialize;
 const MAX_CATCH_UP_FRAMES: u32 = 11;
 
 /// What the pipeline has counted since it started.
+/// The suspension as the estimator has learnt it (`Pipeline::suspension`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Suspension {
+    /// Body pitch per m/s^2 of braking, deg (0 until a brisk stop teaches it).
+    pub pitch_per_braking_deg_per_mps2: f64,
+    /// Share of that pitch the body shows standing on a grade (1 until stops at
+    /// different grades tell).
+    pub grade_share: f64,
+}
+
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct Counters {
     /// LEVELING frames handed to the sink.
@@ -245,6 +255,15 @@ impl Pipeline {
 
     pub fn estimate(&self) -> Option<Estimate> {
         self.est.estimate()
+    }
+
+    /// What the estimator learnt of the suspension: the body's pitch per m/s^2 of
+    /// braking, deg, and the share of it the body shows standing on a grade.
+    pub fn suspension(&self) -> Suspension {
+        Suspension {
+            pitch_per_braking_deg_per_mps2: self.est.pitch_per_force_deg(),
+            grade_share: self.est.grade_share(),
+        }
     }
 
     /// The LEVELING payload for the current state (the counter is the next to send).

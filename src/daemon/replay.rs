@@ -42,6 +42,7 @@ pub struct FinalState {
     pub status: crate::can::codec::Status,
     pub estimate_count: u64,
     pub standstill: bool,
+    pub suspension: crate::daemon::pipeline::Suspension,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -237,6 +238,7 @@ pub fn replay<'a>(
             status: p.status(),
             estimate_count: est.map_or(0, |e| e.windows),
             standstill: p.is_standstill(),
+            suspension: p.suspension(),
         },
     })
 }
@@ -352,6 +354,12 @@ pub fn write_summary_text(out: &mut dyn Write, s: &Summary) -> std::io::Result<(
         s.estimates_rejected,
         s.estimates_withdrawn,
         s.leveling_frames
+    )?;
+    let susp = s.final_state.suspension;
+    writeln!(
+        out,
+        "suspension: body pitch {:.3} deg per m/s^2 of braking, {:.2} of it standing on a grade",
+        susp.pitch_per_braking_deg_per_mps2, susp.grade_share
     )?;
     match s.final_state.road_to_body_pitch_deg {
         Some(p) => writeln!(

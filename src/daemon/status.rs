@@ -71,6 +71,9 @@ pub struct StatusReport {
     #[serde(default)]
     pub windows_withdrawn: u64,
     pub standstills: u64,
+    /// What the estimator learnt of the suspension (absent in reports of older versions).
+    #[serde(default)]
+    pub suspension: Option<crate::daemon::pipeline::Suspension>,
 }
 
 /// Seconds since the Unix epoch on the wall clock (for people reading the report).
@@ -141,6 +144,7 @@ pub fn report(p: &Pipeline, live: &LiveStats, cx: &Context) -> StatusReport {
         windows_rejected: p.counters().windows_rejected,
         windows_withdrawn: p.counters().windows_withdrawn,
         standstills: p.counters().standstills,
+        suspension: Some(p.suspension()),
     }
 }
 

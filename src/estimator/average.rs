@@ -81,7 +81,7 @@ pub struct GradeShare {
 
 /// The physics' prior: a car at rest on a grade is held by its brakes, so a body
 /// dives or squats there as under braking (share 1) ...
-const SHARE_PRIOR: f64 = 1.0;
+pub(super) const SHARE_PRIOR: f64 = 1.0;
 /// ... and anti-dive geometry, a parking brake on one axle or a vehicle model without
 /// it can make it anything from 0 up: one standard deviation, half of it. On hilly
 /// drives (stops at grades to 15 %) 16-26 windows of 300 ug/sqrt(Hz) take the share
@@ -109,6 +109,8 @@ pub struct Combined {
     pub std_err_deg: f64,
     /// Effective number of windows behind the value (a load-change prior counts as its weight).
     pub weight: f64,
+    /// The fitted share of its braking pitch the body shows on a grade (see [`GradeShare`]).
+    pub grade_share: f64,
 }
 
 impl Averager {
@@ -313,6 +315,7 @@ impl Averager {
             value_deg: f.value_deg,
             std_err_deg: f.sigma_deg / f.value_precision.max(1e-9).sqrt(),
             weight: f.weight,
+            grade_share: f.share,
         })
     }
 

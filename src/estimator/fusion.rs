@@ -341,7 +341,11 @@ impl Estimator {
 
     pub(super) fn refresh_estimate(&mut self) {
         let accepted = self.avg.accepted();
-        self.estimate = self.avg.combined().map(|c| Estimate {
+        let combined = self.avg.combined();
+        if let Some(c) = combined {
+            self.grade_share = c.grade_share;
+        }
+        self.estimate = combined.map(|c| Estimate {
             road_to_body_deg: c.value_deg,
             std_err_deg: c.std_err_deg,
             windows: accepted,

@@ -116,6 +116,8 @@ pub struct Estimator {
     last_slope_rad: Option<f64>,
     /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
     grade: GradePitch,
+    /// See [`Estimator::grade_share`].
+    grade_share: f64,
     /// `cfg.acc_matrix`, unless it is the identity.
     acc_matrix: Option<Matrix3<f64>>,
     /// Roll of the IMU on the level floor of the end-of-line calibration (elevation of
@@ -193,6 +195,7 @@ impl Estimator {
             baseline_pitch_rad: None,
             last_slope_rad: None,
             grade: GradePitch::default(),
+            grade_share: average::SHARE_PRIOR,
             floor_roll_rad: None,
             acc_matrix: {
                 let m = Matrix3::from_fn(|i, j| cfg.acc_matrix[i][j]);
@@ -219,8 +222,8 @@ impl Estimator {
 
     /// The share of its braking pitch the body shows standing on a grade, as the
     /// windows so far fit it (1 before they tell; `estimator/average.rs`, `GradeShare`).
-    pub fn grade_share(&mut self) -> f64 {
-        self.avg.share()
+    pub fn grade_share(&self) -> f64 {
+        self.grade_share
     }
 
     /// Road slope of the last accepted window, deg.
