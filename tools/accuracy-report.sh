@@ -66,6 +66,8 @@ sens() {
     sens "urban, stiff suspension (pitch 1.6-1.9 Hz, damping 0.3-0.5, 0.08-0.15 deg per m/s^2)" \
         urban "realistic.pitch_freq_hz=[1.6, 1.9]" "realistic.pitch_damping=[0.3, 0.5]" \
         "realistic.pitch_per_accel_deg=[0.08, 0.15]"
+    sens "hilly, a body that stands level on every grade (no pitch from the grade's pull)" hilly \
+        realistic.pitch_from_grade=false
     sens "urban, every drive-off gentle (0.3-0.6 m/s^2)" urban realistic.gentle_start_share=1.0
     sens "hilly, every drive-off gentle (0.3-0.6 m/s^2)" hilly realistic.gentle_start_share=1.0
     sens "stop-and-go, every drive-off gentle (0.3-0.6 m/s^2)" stop-and-go \
