@@ -107,9 +107,8 @@ impl Estimator {
             if !(c.value_deg.is_finite() && c.value_deg.abs() < 45.0 && c.weight.is_finite()) {
                 return Err(StateError::Implausible("averager"));
             }
-            // Carry the stored evidence as a prior worth its full weight.
-            avg.restore_prior(c.value_deg, c.weight, stored.accepted());
-            avg.keep_grade_of(&mut stored);
+            // Carry the stored evidence, its spread and what it learnt of the grade.
+            avg.restore_from(&mut stored);
         }
         self.avg = avg;
         self.bias_rps = st
