@@ -514,6 +514,7 @@ impl Averager {
     /// grade: the braking pitch and, as the prior, the grade share it fitted. What is
     /// not finite or out of range is left at the prior. Nothing when `stored` is empty.
     pub fn restore_from(&mut self, stored: &mut Averager) {
+        stored.sanitize_learnt();
         let Some(f) = stored.fit() else {
             return;
         };
@@ -538,6 +539,21 @@ impl Averager {
                 mean: f.share,
                 precision: f.share_precision.clamp(0.0, MAX_SHARE_PRIORS * base),
             };
+        }
+    }
+
+    /// Put what a saved average learnt of the grade back to the priors where it is not
+    /// finite or out of range (a damaged or edited state file), before it is fitted.
+    pub fn sanitize_learnt(&mut self) {
+        let p = self.share_prior;
+        if !((SHARE_RANGE.0..=SHARE_RANGE.1).contains(&p.mean)
+            && p.precision.is_finite()
+            && p.precision >= 0.0)
+        {
+            self.share_prior = GradeShare::default();
+        }
+        if !self.per_force_deg.is_finite() {
+            self.per_force_deg = 0.0;
         }
     }
 
@@ -896,5 +912,29 @@ mod tests {
             "saved {saved:?}, restored {back:?}"
         );
         assert_eq!(restored.accepted(), 20);
+    }
+
+    #[test]
+    fn a_saved_average_with_implausible_learnt_values_restores_with_the_priors() {
+        // A state file edited or damaged into a share far out of range, a negative
+        // precision and a negative spread: the value comes back, the rest falls back.
+        let mut a = Averager::new(Averaging::Huber, 64, 0.2);
+        graded_windows(&mut a, 1.0);
+        let mut json = serde_json::to_value(&a).unwrap();
+        json["share_prior"] = serde_json::json!({"mean": 1e9, "precision": -5.0});
+        json["carried_ss"] = serde_json::json!(-1.0);
+        json["carried_dof"] = serde_json::json!(3.0);
+        let mut stored: Averager = serde_json::from_value(json).unwrap();
+        let mut restored = Averager::new(Averaging::Huber, 64, 0.2);
+        restored.restore_from(&mut stored);
+        let c = restored.combined().unwrap();
+        let saved = a.combined().unwrap();
+        assert!(
+            (c.value_deg - saved.value_deg).abs() < 1e-9,
+            "{c:?} for {saved:?}"
+        );
+        assert!(c.std_err_deg.is_finite(), "{c:?}");
+        assert!((restored.share() - a.share()).abs() < 1e-6);
+        assert!(restored.carried_ss >= 0.0, "{}", restored.carried_ss);
     }
 }

@@ -103,6 +103,7 @@ impl Estimator {
             self.cfg.window_sigma_prior_deg,
         );
         let mut stored = st.averager.clone();
+        stored.sanitize_learnt();
         if let Some(c) = stored.combined() {
             if !(c.value_deg.is_finite() && c.value_deg.abs() < 45.0 && c.weight.is_finite()) {
                 return Err(StateError::Implausible("averager"));
