@@ -245,16 +245,14 @@ impl Averager {
     /// more than its uncertainty allows: its standard error and the step's, against the
     /// spread of a typical window. Older windows are dropped.
     pub fn restart_shifted(&mut self, delta_deg: f64, delta_sd_deg: f64, prior_weight: f64) {
-        let prior = self.combined();
-        if let Some(f) = self.fit() {
+        let fit = self.fit();
+        let prior = fit.as_ref().map(Fit::combined);
+        if let Some(f) = fit {
             // The new load stands on the same suspension: what the windows showed of
-            // the grade share holds, as a prior no firmer than MAX_SHARE_PRIORS.
-            self.share_prior = GradeShare {
-                mean: f.share,
-                precision: f
-                    .share_precision
-                    .min(MAX_SHARE_PRIORS * SHARE_PRIOR_SD.powi(-2)),
-            };
+            // the grade share holds.
+            if let Some(share) = f.share_as_prior() {
+                self.share_prior = share;
+            }
             self.carried_ss += f.ss;
             self.carried_dof += f.dof;
             // The carried spread counts as at most one full average of windows.
@@ -310,13 +308,7 @@ impl Averager {
 
     /// Current combined value; `None` before any window.
     pub fn combined(&mut self) -> Option<Combined> {
-        let f = self.fit()?;
-        Some(Combined {
-            value_deg: f.value_deg,
-            std_err_deg: f.sigma_deg / f.value_precision.max(1e-9).sqrt(),
-            weight: f.weight,
-            grade_share: f.share,
-        })
+        self.fit().map(|f| f.combined())
     }
 
     /// Spread of a window of weight 1 from the sum of squares and degrees of freedom
@@ -475,6 +467,30 @@ impl Averager {
     }
 }
 
+impl Fit {
+    fn combined(&self) -> Combined {
+        Combined {
+            value_deg: self.value_deg,
+            std_err_deg: self.sigma_deg / self.value_precision.max(1e-9).sqrt(),
+            weight: self.weight,
+            grade_share: self.share,
+        }
+    }
+
+    /// What the fit showed of the grade share, as the prior of a later fit (a new
+    /// load, a restart), no firmer than `MAX_SHARE_PRIORS` first priors; `None` where
+    /// it is not finite or out of range.
+    fn share_as_prior(&self) -> Option<GradeShare> {
+        ((SHARE_RANGE.0..=SHARE_RANGE.1).contains(&self.share) && self.share_precision.is_finite())
+            .then(|| GradeShare {
+                mean: self.share,
+                precision: self
+                    .share_precision
+                    .clamp(0.0, MAX_SHARE_PRIORS * SHARE_PRIOR_SD.powi(-2)),
+            })
+    }
+}
+
 /// See [`Averager::solve`].
 struct Solved {
     value: f64,
@@ -533,12 +549,8 @@ impl Averager {
         if stored.per_force_deg.is_finite() {
             self.per_force_deg = stored.per_force_deg;
         }
-        let base = SHARE_PRIOR_SD.powi(-2);
-        if (SHARE_RANGE.0..=SHARE_RANGE.1).contains(&f.share) && f.share_precision.is_finite() {
-            self.share_prior = GradeShare {
-                mean: f.share,
-                precision: f.share_precision.clamp(0.0, MAX_SHARE_PRIORS * base),
-            };
+        if let Some(share) = f.share_as_prior() {
+            self.share_prior = share;
         }
     }
 
