@@ -308,6 +308,45 @@ fn calibration_on_a_level_floor_reads_the_mounting_pitch() {
     }
 }
 
+#[test]
+fn the_level_correction_is_taken_against_a_floor_pitch_freed_of_the_accelerometer_bias() {
+    // A hilly drive whose accelerometer reads 0.27 m/s^2 along x: the floor's raw pitch
+    // is 1.6 deg above the road-to-body pitch the windows find, and the correction sent
+    // for the floor's load must stay near zero all the same.
+    let text = std::fs::read_to_string(root().join("scenarios/realistic/hilly.toml")).unwrap();
+    let mut spec = leveld::bench::suite::DriveSpec::parse(&text).unwrap();
+    spec.seed = 1106;
+    let case = spec.cases().into_iter().find(|c| c.load == "1P").unwrap();
+    let sc = case.scenario;
+    assert!(
+        sc.sensors.acc_bias_mps2[0] > 0.25,
+        "{:?}",
+        sc.sensors.acc_bias_mps2
+    );
+    let (floor_pitch, floor_roll) = leveld::sim::floor_attitude_deg(&sc);
+    let mut p = pipeline();
+    p.set_calibration(&leveld::daemon::calibration::Calibration::Calibrated {
+        reference_pitch_deg: floor_pitch,
+        reference_roll_deg: Some(floor_roll),
+        legacy: false,
+    });
+    p.seed_calibration(floor_pitch, 4.0);
+    let mut sink = Collect::default();
+    for f in &frames_of(&sc) {
+        p.on_can_frame(f.t_s, f, &mut sink);
+    }
+    let (_, last) = sink.frames.last().unwrap();
+    let out = p.output().decode(last);
+    let truth = leveld::sim::simulate(&sc).truth_at(0.0).load_pitch_deg;
+    assert!(floor_pitch - truth > 1.4, "{floor_pitch} {truth}");
+    // Measured: -0.01 deg (against the raw floor pitch, +1.57); road-to-body -0.02 off.
+    assert!(out.level_correction_deg.abs() < 0.1, "{out:?}");
+    assert!(
+        (out.road_to_body_deg - truth).abs() < 0.1,
+        "{out:?} {truth}"
+    );
+}
+
 fn multi_stop() -> Scenario {
     leveld::sim::presets::preset("multi-stop", 5).unwrap()
 }

@@ -1959,3 +1959,47 @@ fn stops_at_different_grades_tell_whether_the_body_pitches_on_a_grade() {
         "a body that pitches on grades: {full:.2?}"
     );
 }
+
+#[test]
+fn the_end_of_line_reference_loses_the_accelerometer_bias_the_stops_learn() {
+    // The floor's raw pitch carries the x bias as bias / g (the family draws up to 0.3
+    // m/s^2, 1.7 deg); the windows do not, so a correction taken against the raw
+    // reference tilts the beam by that much for good. Hilly drives, one load, fresh
+    // seeds: the reference at the drive's end against the car's road-to-body pitch on
+    // the floor.
+    let text = shipped("hilly");
+    let (mut raw, mut free) = (Vec::new(), Vec::new());
+    for seed in 1101..1109 {
+        let mut s = DriveSpec::parse(&text).unwrap();
+        s.seed = seed;
+        let case = s.cases().into_iter().find(|c| c.load == "1P").unwrap();
+        let drive = simulate(&case.scenario);
+        let (floor_pitch, floor_roll) = leveld::sim::floor_attitude_deg(&case.scenario);
+        let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
+        est.set_floor_roll_deg(Some(floor_roll));
+        est.seed_calibration(floor_pitch, 4.0);
+        for input in drive.merged() {
+            match input {
+                Input::Imu(x) => est.push_imu(x, &mut |_| ()),
+                Input::Wheels(w) => est.push_wheels(w, &mut |_| ()),
+            }
+        }
+        let truth = drive.truth_at(0.0).load_pitch_deg;
+        let (r, f) = (
+            floor_pitch - truth,
+            est.level_reference_deg(floor_pitch) - truth,
+        );
+        if case.scenario.sensors.acc_bias_mps2[0].abs() >= 0.1 {
+            assert!(
+                f.abs() < 0.5 * r.abs(),
+                "seed {seed}: raw {r:+.3}, free {f:+.3}"
+            );
+        }
+        raw.push(r);
+        free.push(f);
+    }
+    // Measured: raw 0.74 deg rms, without the learnt bias 0.12 (what the stops have not
+    // learnt of it, and its drift since the floor; the worst drive 0.26).
+    assert!(rms(&raw) > 0.5, "these drives must carry a bias: {raw:?}");
+    assert!(rms(&free) < 0.2, "{free:?}");
+}

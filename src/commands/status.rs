@@ -120,13 +120,18 @@ fn write_report(out: &mut impl Write, r: &StatusReport, now: f64, running: bool)
             status.as_str().unwrap_or("?")
         )?,
     }
-    match r.reference_pitch_deg {
-        Some(c) => writeln!(
+    match (r.reference_pitch_deg, r.level_reference_deg) {
+        (Some(c), Some(l)) => writeln!(
+            out,
+            "calibration: reference pitch {c:+.3} deg, {l:+.3} without the accelerometer bias learnt ({})",
+            r.calibration
+        )?,
+        (Some(c), None) => writeln!(
             out,
             "calibration: reference pitch {c:+.3} deg ({})",
             r.calibration
         )?,
-        None => writeln!(
+        (None, _) => writeln!(
             out,
             "calibration: {}; the config's reference pitch is used",
             r.calibration

@@ -55,6 +55,8 @@ pub struct Pipeline {
     out: OutputCodec,
     leveling: super::config::Leveling,
     reference_pitch_deg: f64,
+    /// `reference_pitch_deg` is a floor's raw pitch from a calibration.
+    floor_reference: bool,
     fault: bool,
     /// No end-of-line calibration in use (LEVELING `uncalibrated` flag).
     uncalibrated: bool,
@@ -86,6 +88,7 @@ impl Pipeline {
             out: OutputCodec::build(db, &cfg.output)?,
             leveling: cfg.leveling.clone(),
             reference_pitch_deg: cfg.leveling.reference_pitch_deg,
+            floor_reference: false,
             fault: false,
             uncalibrated: false,
             calibration_fault: false,
@@ -138,6 +141,7 @@ impl Pipeline {
         self.calibration_fault = matches!(cal, Calibration::Unreadable(_));
         if let Some(r) = cal.reference_pitch_deg() {
             self.reference_pitch_deg = r;
+            self.floor_reference = true;
         }
         self.est.set_floor_roll_deg(cal.reference_roll_deg());
     }
@@ -266,12 +270,25 @@ impl Pipeline {
         }
     }
 
+    /// The road-to-body pitch `LevelCorrection` is measured from, deg. A calibration is
+    /// the IMU's raw pitch on the floor, which carries the accelerometer's x bias; the
+    /// windows' pitch does not, so the bias the stops have learnt comes off it
+    /// (`Estimator::level_reference_deg`). The config's value is taken as it stands.
+    pub fn level_reference_deg(&self) -> f64 {
+        if self.floor_reference {
+            self.est.level_reference_deg(self.reference_pitch_deg)
+        } else {
+            self.reference_pitch_deg
+        }
+    }
+
     /// The LEVELING payload for the current state (the counter is the next to send).
     pub fn payload(&self) -> [u8; 8] {
         let e = self.est.estimate();
         let r2b = e.map_or(0.0, |e| e.road_to_body_deg);
+        let reference = self.level_reference_deg();
         let corr = if e.is_some() {
-            (-(r2b - self.reference_pitch_deg)).clamp(
+            (-(r2b - reference)).clamp(
                 self.leveling.actuator_min_deg,
                 self.leveling.actuator_max_deg,
             )

@@ -50,6 +50,11 @@ pub struct StatusReport {
     pub windows: Option<u64>,
     /// End-of-line reference pitch from `leveld calibrate`, deg (None: the config's).
     pub reference_pitch_deg: Option<f64>,
+    /// The reference `LevelCorrection` is measured from, deg: the calibrated one less
+    /// the accelerometer bias learnt since (see `Pipeline::level_reference_deg`), or
+    /// the config's.
+    #[serde(default)]
+    pub level_reference_deg: Option<f64>,
     /// "ok", or why no calibration is in use.
     #[serde(default)]
     pub calibration: String,
@@ -129,6 +134,7 @@ pub fn report(p: &Pipeline, live: &LiveStats, cx: &Context) -> StatusReport {
         std_err_deg: est.map(|e| e.std_err_deg),
         windows: est.map(|e| e.windows),
         reference_pitch_deg: cx.calibration.reference_pitch_deg(),
+        level_reference_deg: Some(p.level_reference_deg()),
         calibration: cx.calibration.describe(),
         inputs,
         can: cx.can.to_string(),

@@ -69,6 +69,27 @@ impl Estimator {
         }
     }
 
+    /// The pitch, rad, of a raw force read at rest whose pitch is `pitch_rad` and whose
+    /// y axis stands at `roll_rad` (as `standstill_pitch` and `standstill_roll_deg`
+    /// read them), with the accelerometer bias learnt so far taken out.
+    pub(super) fn unbiased_pitch_rad(&self, pitch_rad: f64, roll_rad: f64) -> f64 {
+        let b = self.acc_bias_mps2();
+        let (sp, sr) = (pitch_rad.sin(), roll_rad.sin());
+        let up = Vector3::new(sp, sr, (1.0 - sp * sp - sr * sr).max(0.0).sqrt());
+        let f = up * self.gravity_mps2(&up);
+        match (pitch_from(&f), pitch_from(&(f - b))) {
+            (Some(raw), Some(free)) if b != Vector3::zeros() => pitch_rad + (free - raw),
+            _ => pitch_rad,
+        }
+    }
+
+    /// Standard deviation of the accelerometer's x bias as the stops know it, m/s^2
+    /// (the prior before any settled stop).
+    pub(super) fn acc_bias_x_sd_mps2(&self) -> f64 {
+        self.stop_bias
+            .map_or(STOP_BIAS_PRIOR_MPS2, |f| f.p[(1, 1)].max(0.0).sqrt())
+    }
+
     /// One settled stop's mean specific force `f_mean` (pitch centre, `n` samples) for
     /// the accelerometer bias: stops at different pitch see gravity along different body
     /// directions, and the magnitude follows the bias along them.

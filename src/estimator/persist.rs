@@ -51,13 +51,36 @@ pub enum StateError {
 }
 
 impl Estimator {
-    /// End-of-line calibration on a level floor: the IMU pitch is the road-to-body
-    /// pitch. Seeds the estimate with it, worth `weight` windows, and makes it the load
-    /// baseline.
-    pub fn seed_calibration(&mut self, road_to_body_deg: f64, weight: f64) {
-        self.avg.restore_prior(road_to_body_deg, weight, 0);
-        self.baseline_pitch_rad = Some(road_to_body_deg.to_radians());
+    /// End-of-line calibration on a level floor: the IMU pitch there, raw, is the
+    /// road-to-body pitch but for the accelerometer bias (see `level_reference_deg`).
+    /// Seeds the estimate with it, worth `weight` windows at most and no more than the
+    /// bias known so far allows (a bias of 0.2 m/s^2 is 1.2 deg of pitch: then the seed
+    /// is worth a few hundredths of a window and the windows decide), and makes it the
+    /// baseline of load changes at rest (raw against raw).
+    pub fn seed_calibration(&mut self, floor_pitch_deg: f64, weight: f64) {
+        let value = self.level_reference_deg(floor_pitch_deg);
+        let bias_sd_deg = (self.acc_bias_x_sd_mps2() / super::STANDARD_GRAVITY_MPS2).to_degrees();
+        let known = (self.cfg.window_sigma_prior_deg / bias_sd_deg.max(1e-6)).powi(2);
+        self.avg.restore_prior(value, weight.min(known), 0);
+        self.baseline_pitch_rad = Some(floor_pitch_deg.to_radians());
         self.refresh_estimate();
+    }
+
+    /// The road-to-body pitch that an end-of-line reference stands for, deg: the IMU's
+    /// pitch read raw on the level floor (`standstill_pitch` there; with its roll from
+    /// `set_floor_roll_deg`), less what the accelerometer bias learnt since adds to
+    /// such a reading. A window measures the angle between the IMU and the road, which
+    /// no bias moves; the floor's raw pitch carries the x bias as bias / g (0.2 m/s^2 is
+    /// 1.2 deg), and a level correction taken against it would be off by that much for
+    /// the life of the car. What is left is what the stops have not learnt of the bias
+    /// and its drift since the floor.
+    pub fn level_reference_deg(&self, floor_pitch_deg: f64) -> f64 {
+        if !floor_pitch_deg.is_finite() {
+            return floor_pitch_deg;
+        }
+        let roll = self.floor_roll_rad.unwrap_or(0.0);
+        self.unbiased_pitch_rad(floor_pitch_deg.to_radians(), roll)
+            .to_degrees()
     }
 
     /// Snapshot for persistence.

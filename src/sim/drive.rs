@@ -106,10 +106,11 @@ fn body_to_imu(mount_deg: &[f64; 3]) -> UnitQuaternion<f64> {
     .inverse()
 }
 
-/// What an end-of-line station reads as the IMU's roll with the car at rest on a level
-/// floor under its first load, deg: the elevation of the IMU's y axis from the force it
-/// measures there, its accelerometer bias at the start of the drive included.
-pub fn floor_roll_deg(sc: &Scenario) -> f64 {
+/// What an end-of-line station reads as the IMU's pitch and roll with the car at rest
+/// on a level floor under its first load, deg: the pitch (of its x axis) and the
+/// elevation of its y axis from the force it measures there, its accelerometer bias at
+/// the start of the drive included.
+pub fn floor_attitude_deg(sc: &Scenario) -> (f64, f64) {
     let body = UnitQuaternion::from_axis_angle(
         &Vector3::y_axis(),
         -sc.load_pitch_deg_at(0.0).to_radians(),
@@ -117,7 +118,13 @@ pub fn floor_roll_deg(sc: &Scenario) -> f64 {
     let f = sc.sensors.acc_axes_matrix()
         * (body_to_imu(&sc.vehicle.imu_mount_deg) * (body.inverse() * Vector3::z() * G_MPS2))
         + Vector3::from(sc.sensors.acc_bias_mps2);
-    (f.y / f.norm()).asin().to_degrees()
+    let n = f.norm();
+    ((f.x / n).asin().to_degrees(), (f.y / n).asin().to_degrees())
+}
+
+/// The roll of [`floor_attitude_deg`], deg.
+pub fn floor_roll_deg(sc: &Scenario) -> f64 {
+    floor_attitude_deg(sc).1
 }
 
 fn ramped_accel(segs: &[super::scenario::SpeedSegment], ramp_s: f64, t: f64) -> f64 {

@@ -8,5 +8,5 @@ pub mod presets;
 pub mod roughness;
 pub mod scenario;
 
-pub use drive::{Drive, Input, Truth, floor_roll_deg, simulate};
+pub use drive::{Drive, Input, Truth, floor_attitude_deg, floor_roll_deg, simulate};
 pub use scenario::{Road, Scenario, Sensors, SpeedProfile, Vehicle};
