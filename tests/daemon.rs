@@ -85,6 +85,15 @@ fn config_mistakes_name_the_file_and_field() {
         None,
     ));
     assert!(e.contains("gyro_bias_time_constant_s"), "{e}");
+    let e = err_of(load_variant(
+        "bias-prior",
+        &reference_toml().replace("acc_bias_prior_mps2 = 0.2", "acc_bias_prior_mps2 = 0.0"),
+        None,
+    ));
+    assert!(
+        e.contains("acc_bias_prior_mps2") && e.contains("offset"),
+        "{e}"
+    );
     // A key of an earlier version names what replaced it.
     let e = err_of(load_variant(
         "renamed",

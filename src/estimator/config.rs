@@ -158,6 +158,13 @@ pub struct EstimatorConfig {
     /// dives 0.3 deg per m/s^2 while braking turns a 0.3 m/s^2 bias into a vertical
     /// 1.6 mm/s^2 per m/s^2 of deceleration: about 0.09 deg on every window.
     pub correct_acc_bias: bool,
+    /// How far the accelerometer's horizontal bias may be off zero before any stop has
+    /// shown it (1 sigma), m/s^2: 0.2 for an untrimmed MEMS part (20-30 mg), a few
+    /// hundredths for one trimmed at its maker (its data sheet's offset after
+    /// calibration). The stops weigh what they show against it; the end-of-line
+    /// reference takes the bias out as they learnt it (`level_reference_deg`), so a prior
+    /// far wider than the part's bias lets the stops' noise into the reference.
+    pub acc_bias_prior_mps2: f64,
     /// IMU history kept for the deceleration window (integrated backwards from the stop), s.
     pub history_s: f64,
     /// A step in standstill IMU pitch above this is taken as a load change, deg.
@@ -271,6 +278,7 @@ impl Default for EstimatorConfig {
             lever_arm_m: [2.0, 0.0, 0.3],
             learn_lever_arm: true,
             correct_acc_bias: true,
+            acc_bias_prior_mps2: 0.2,
             history_s: 30.0,
             load_change_deg: 0.2,
             load_block_s: 0.5,
@@ -487,6 +495,13 @@ impl EstimatorConfig {
             });
         }
         pos("window_sigma_prior_deg", self.window_sigma_prior_deg)?;
+        if !(self.acc_bias_prior_mps2 >= 0.001 && self.acc_bias_prior_mps2 <= 2.0) {
+            return Err(ConfigError {
+                field: "acc_bias_prior_mps2",
+                value: self.acc_bias_prior_mps2,
+                hint: "give the accelerometer's offset, 0.001-2 m/s^2 (0.2 for an untrimmed MEMS part)",
+            });
+        }
         for (i, row) in self.acc_matrix.iter().enumerate() {
             for (j, v) in row.iter().enumerate() {
                 let ok = if i == j {

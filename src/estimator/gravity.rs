@@ -86,8 +86,9 @@ impl Estimator {
     /// Standard deviation of the accelerometer's x bias as the stops know it, m/s^2
     /// (the prior before any settled stop).
     pub(super) fn acc_bias_x_sd_mps2(&self) -> f64 {
-        self.stop_bias
-            .map_or(STOP_BIAS_PRIOR_MPS2, |f| f.p[(1, 1)].max(0.0).sqrt())
+        self.stop_bias.map_or(self.cfg.acc_bias_prior_mps2, |f| {
+            f.p[(1, 1)].max(0.0).sqrt()
+        })
     }
 
     /// One settled stop's mean specific force `f_mean` (pitch centre, `n` samples) for
@@ -104,9 +105,10 @@ impl Estimator {
         let r_sample = self.gravity.map_or(1e-3, |g| g.noise());
         let r = STOP_FLOOR_MPS2 * STOP_FLOOR_MPS2 + r_sample / n as f64;
         let q = self.cfg.gravity_walk_mps2_rts;
+        let prior = self.cfg.acc_bias_prior_mps2;
         let f = self
             .stop_bias
-            .get_or_insert_with(|| GravityFilter::new(m, 1.0, [0.0; 2], STOP_BIAS_PRIOR_MPS2));
+            .get_or_insert_with(|| GravityFilter::new(m, 1.0, [0.0; 2], prior));
         f.update_bounded(t_s, f_mean, q, r);
     }
 
@@ -164,10 +166,6 @@ pub(super) struct GravityBlock {
 
 /// What one stop's mean magnitude leaves unexplained beyond its sample noise, m/s^2.
 const STOP_FLOOR_MPS2: f64 = 0.003;
-
-/// Prior spread of the horizontal accelerometer bias for the stop filter, m/s^2: an
-/// uncalibrated MEMS part can be 20-30 mg off.
-const STOP_BIAS_PRIOR_MPS2: f64 = 0.2;
 
 /// Kalman filter on the standstill specific-force magnitude. An accelerometer bias `b`
 /// makes the magnitude depend on where gravity points in the body: |g u + b| is about
@@ -397,7 +395,8 @@ mod tests {
     fn one_stop_short_of_gravity_does_not_become_a_bias_that_agreeing_stops_still_teach() {
         let (g, b) = (9.81, Vector3::new(0.03, 0.0, 0.0));
         let r = STOP_FLOOR_MPS2 * STOP_FLOOR_MPS2;
-        let mut f = GravityFilter::new(g, 1.0, [0.0; 2], STOP_BIAS_PRIOR_MPS2);
+        let prior = crate::estimator::EstimatorConfig::default().acc_bias_prior_mps2;
+        let mut f = GravityFilter::new(g, 1.0, [0.0; 2], prior);
         for (k, pitch) in [2.3, 1.5, 1.8, 1.7, -1.4, -0.8, -0.8].iter().enumerate() {
             f.update_bounded(k as f64 * 60.0, &stop_force(*pitch, g, b, 0.0), 0.0005, r);
         }
