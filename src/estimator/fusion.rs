@@ -219,6 +219,10 @@ impl Estimator {
                     }
                 }
                 self.last_slope_rad = Some(g.slope_rad);
+                self.travel_yaw.0 += g
+                    .travel_yaw_rad
+                    .clamp(-MAX_TRAVEL_YAW_RAD, MAX_TRAVEL_YAW_RAD);
+                self.travel_yaw.1 = self.travel_yaw.1.saturating_add(1);
                 self.refresh_estimate();
                 if shifted {
                     let before = self.estimate.map_or(0.0, |e| e.road_to_body_deg);
@@ -339,15 +343,35 @@ impl Estimator {
         super::STANDARD_GRAVITY_MPS2 * g.slope_rad.sin()
     }
 
+    /// What the accelerometer's y bias, as far as the stops do not know it, leaves in
+    /// every window of an IMU yawed on its mount, deg (1 sigma). A window measures along
+    /// the travel, which such an IMU sees turned by its yaw psi from its x axis; the
+    /// reference it measures from is tilted about x by the unknown part of the y bias,
+    /// b / g, and the travel's pitch takes psi b / g of that (1.5 deg of yaw and 0.2
+    /// m/s^2: 0.03 deg). The floor's roll carries the bias as the car left the line,
+    /// so that the lane roll's correction cannot tell it either. Every window of a drive
+    /// shares it, and only stops at different roll (lanes falling either way) teach the
+    /// bias, so no number of windows averages it away: it is added to the standard
+    /// error, from the mean travel yaw of the windows.
+    fn yaw_bias_sd_deg(&self) -> f64 {
+        let (sum, n) = self.travel_yaw;
+        if n == 0 {
+            return 0.0;
+        }
+        let yaw = (sum / f64::from(n)).abs();
+        (yaw * self.acc_bias_y_sd_mps2() / super::STANDARD_GRAVITY_MPS2).to_degrees()
+    }
+
     pub(super) fn refresh_estimate(&mut self) {
         let accepted = self.avg.accepted();
         let combined = self.avg.combined();
         if let Some(c) = combined {
             self.grade_share = c.grade_share;
         }
+        let unseen = self.yaw_bias_sd_deg();
         self.estimate = combined.map(|c| Estimate {
             road_to_body_deg: c.value_deg,
-            std_err_deg: c.std_err_deg,
+            std_err_deg: c.std_err_deg.hypot(unseen),
             windows: accepted,
             weight: c.weight,
         });

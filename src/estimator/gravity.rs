@@ -91,6 +91,13 @@ impl Estimator {
         })
     }
 
+    /// The same of the y bias, m/s^2.
+    pub(super) fn acc_bias_y_sd_mps2(&self) -> f64 {
+        self.stop_bias.map_or(self.cfg.acc_bias_prior_mps2, |f| {
+            f.p[(2, 2)].max(0.0).sqrt()
+        })
+    }
+
     /// One settled stop's mean specific force `f_mean` (pitch centre, `n` samples) for
     /// the accelerometer bias: stops at different pitch see gravity along different body
     /// directions, and the magnitude follows the bias along them.

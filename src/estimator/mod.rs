@@ -118,6 +118,8 @@ pub struct Estimator {
     grade: GradePitch,
     /// See [`Estimator::grade_share`].
     grade_share: f64,
+    /// Sum and count of the accepted windows' travel yaw in the IMU's frame, rad.
+    travel_yaw: (f64, u32),
     /// `cfg.acc_matrix`, unless it is the identity.
     acc_matrix: Option<Matrix3<f64>>,
     /// Roll of the IMU on the level floor of the end-of-line calibration (elevation of
@@ -196,6 +198,7 @@ impl Estimator {
             last_slope_rad: None,
             grade: GradePitch::default(),
             grade_share: average::SHARE_PRIOR,
+            travel_yaw: (0.0, 0),
             floor_roll_rad: None,
             acc_matrix: {
                 let m = Matrix3::from_fn(|i, j| cfg.acc_matrix[i][j]);

@@ -33,6 +33,13 @@ pub struct EstimatorState {
     /// The body's pitch against braking learnt from deceleration windows (see `grade`).
     #[serde(default)]
     pub grade_pitch: Option<GradePitch>,
+    /// How well the stops knew the bias along x and y (1 sigma), m/s^2; a state
+    /// written before it was kept reads as known to 0.02.
+    #[serde(default)]
+    pub stop_bias_sd_mps2: Option<[f64; 2]>,
+    /// Mean travel yaw of the accepted windows in the IMU's frame, rad, and how many.
+    #[serde(default)]
+    pub travel_yaw: Option<(f64, u32)>,
 }
 
 impl EstimatorState {
@@ -96,6 +103,15 @@ impl Estimator {
             lever_fit: Some(self.lever_fit),
             stop_gravity_mps2: self.stop_bias.map(|g| [g.x.x, g.x.y, g.x.z]),
             grade_pitch: Some(self.grade),
+            stop_bias_sd_mps2: self
+                .stop_bias
+                .map(|_| [self.acc_bias_x_sd_mps2(), self.acc_bias_y_sd_mps2()]),
+            travel_yaw: (self.travel_yaw.1 > 0).then(|| {
+                (
+                    self.travel_yaw.0 / f64::from(self.travel_yaw.1),
+                    self.travel_yaw.1,
+                )
+            }),
         }
     }
 
@@ -162,6 +178,18 @@ impl Estimator {
         {
             return Err(StateError::Implausible("stop_gravity_mps2"));
         }
+        if st
+            .stop_bias_sd_mps2
+            .is_some_and(|b| b.iter().any(|x| !x.is_finite() || !(0.0..=2.0).contains(x)))
+        {
+            return Err(StateError::Implausible("stop_bias_sd_mps2"));
+        }
+        if st
+            .travel_yaw
+            .is_some_and(|(y, _)| !y.is_finite() || y.abs() > 0.1)
+        {
+            return Err(StateError::Implausible("travel_yaw"));
+        }
         if st.grade_pitch.is_some_and(|g| !g.is_plausible()) {
             return Err(StateError::Implausible("grade_pitch"));
         }
@@ -181,11 +209,21 @@ impl Estimator {
             let bias = st.accel_bias_xy_mps2.unwrap_or([0.0; 2]);
             GravityFilter::new(g, 1e-5, bias, 0.01)
         });
-        // The bias stands as learnt; its spread stays wide enough for a bias that
-        // drifted while the car was parked.
-        self.stop_bias = st
-            .stop_gravity_mps2
-            .map(|[c, bx, by]| GravityFilter::new(c, 1e-4, [bx, by], 0.02));
+        // The bias stands as learnt, as well known as it was (what no stop showed stays
+        // unknown) but no better than a bias that drifted while the car was parked.
+        let [sx, sy] = st
+            .stop_bias_sd_mps2
+            .unwrap_or([0.0; 2])
+            .map(|s| s.max(0.02));
+        self.stop_bias = st.stop_gravity_mps2.map(|[c, bx, by]| {
+            let mut f = GravityFilter::new(c, 1e-4, [bx, by], 0.02);
+            f.p[(1, 1)] = sx * sx;
+            f.p[(2, 2)] = sy * sy;
+            f
+        });
+        self.travel_yaw = st
+            .travel_yaw
+            .map_or((0.0, 0), |(y, n)| (y * f64::from(n), n));
         self.refresh_estimate();
         Ok(())
     }
