@@ -359,7 +359,7 @@ impl Estimator {
             return 0.0;
         }
         let yaw = (sum / f64::from(n)).abs();
-        (yaw * self.acc_bias_y_sd_mps2() / super::STANDARD_GRAVITY_MPS2).to_degrees()
+        (yaw * self.acc_bias_sd_mps2()[1] / super::STANDARD_GRAVITY_MPS2).to_degrees()
     }
 
     pub(super) fn refresh_estimate(&mut self) {

@@ -83,18 +83,12 @@ impl Estimator {
         }
     }
 
-    /// Standard deviation of the accelerometer's x bias as the stops know it, m/s^2
-    /// (the prior before any settled stop).
-    pub(super) fn acc_bias_x_sd_mps2(&self) -> f64 {
-        self.stop_bias.map_or(self.cfg.acc_bias_prior_mps2, |f| {
-            f.p[(1, 1)].max(0.0).sqrt()
-        })
-    }
-
-    /// The same of the y bias, m/s^2.
-    pub(super) fn acc_bias_y_sd_mps2(&self) -> f64 {
-        self.stop_bias.map_or(self.cfg.acc_bias_prior_mps2, |f| {
-            f.p[(2, 2)].max(0.0).sqrt()
+    /// Standard deviation of the accelerometer's x and y bias as the stops know them,
+    /// m/s^2 (the prior before any settled stop).
+    pub(super) fn acc_bias_sd_mps2(&self) -> [f64; 2] {
+        let prior = self.cfg.acc_bias_prior_mps2;
+        self.stop_bias.map_or([prior; 2], |f| {
+            [f.p[(1, 1)], f.p[(2, 2)]].map(|v| v.max(0.0).sqrt())
         })
     }
 

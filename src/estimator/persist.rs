@@ -66,7 +66,7 @@ impl Estimator {
     /// baseline of load changes at rest (raw against raw).
     pub fn seed_calibration(&mut self, floor_pitch_deg: f64, weight: f64) {
         let value = self.level_reference_deg(floor_pitch_deg);
-        let bias_sd_deg = (self.acc_bias_x_sd_mps2() / super::STANDARD_GRAVITY_MPS2).to_degrees();
+        let bias_sd_deg = (self.acc_bias_sd_mps2()[0] / super::STANDARD_GRAVITY_MPS2).to_degrees();
         let known = (self.cfg.window_sigma_prior_deg / bias_sd_deg.max(1e-6)).powi(2);
         self.avg.restore_prior(value, weight.min(known), 0);
         self.baseline_pitch_rad = Some(floor_pitch_deg.to_radians());
@@ -103,9 +103,7 @@ impl Estimator {
             lever_fit: Some(self.lever_fit),
             stop_gravity_mps2: self.stop_bias.map(|g| [g.x.x, g.x.y, g.x.z]),
             grade_pitch: Some(self.grade),
-            stop_bias_sd_mps2: self
-                .stop_bias
-                .map(|_| [self.acc_bias_x_sd_mps2(), self.acc_bias_y_sd_mps2()]),
+            stop_bias_sd_mps2: self.stop_bias.map(|_| self.acc_bias_sd_mps2()),
             travel_yaw: (self.travel_yaw.1 > 0).then(|| {
                 (
                     self.travel_yaw.0 / f64::from(self.travel_yaw.1),
