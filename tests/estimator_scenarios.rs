@@ -263,6 +263,27 @@ fn the_accelerometer_bias_learnt_at_stops_survives_a_restart_and_a_corrupt_one_i
             .expect_err("an implausible bias must be refused");
         assert!(err.to_string().contains("stop_gravity_mps2"), "{err}");
     }
+    // What the stops knew of the bias, and the windows' travel yaw, are refused when
+    // they cannot be.
+    let sd = saved.stop_bias_sd_mps2.expect("kept with the bias");
+    assert!(sd.iter().all(|s| s.is_finite() && *s > 0.0), "{sd:?}");
+    for (bad_sd, bad_yaw, field) in [
+        (Some([-0.1, 0.2]), None, "stop_bias_sd_mps2"),
+        (Some([0.2, f64::NAN]), None, "stop_bias_sd_mps2"),
+        (None, Some((f64::INFINITY, 3)), "travel_yaw"),
+        (None, Some((0.5, 3)), "travel_yaw"),
+    ] {
+        let corrupt = leveld::estimator::EstimatorState {
+            stop_bias_sd_mps2: bad_sd,
+            travel_yaw: bad_yaw,
+            ..saved.clone()
+        };
+        let err = Estimator::new(EstimatorConfig::default())
+            .unwrap()
+            .restore(&corrupt)
+            .expect_err("an implausible record must be refused");
+        assert!(err.to_string().contains(field), "{err}");
+    }
 }
 
 /// Estimate minus the load's pitch after ten stops on a constant grade of `grade_pct`,
