@@ -66,6 +66,14 @@ sens() {
     sens "urban, stiff suspension (pitch 1.6-1.9 Hz, damping 0.3-0.5, 0.08-0.15 deg per m/s^2)" \
         urban "realistic.pitch_freq_hz=[1.6, 1.9]" "realistic.pitch_damping=[0.3, 0.5]" \
         "realistic.pitch_per_accel_deg=[0.08, 0.15]"
+    sens "urban, body rising 2 mm per m/s^2 of force as it pitches" urban \
+        "realistic.heave_per_accel_mm=[2.0, 2.0]"
+    sens "urban, body sinking 2 mm per m/s^2 of force as it pitches" urban \
+        "realistic.heave_per_accel_mm=[-2.0, -2.0]"
+    sens "urban, INS-grade IMU, body rising 2 mm per m/s^2 of force" urban \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "realistic.heave_per_accel_mm=[2.0, 2.0]"
     sens "hilly, a body that stands level on every grade (no pitch from the grade's pull)" hilly \
         realistic.pitch_from_grade=false
     sens "urban, every drive-off gentle (0.3-0.6 m/s^2)" urban realistic.gentle_start_share=1.0

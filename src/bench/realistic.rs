@@ -74,6 +74,8 @@ pub struct RealisticSpec {
     pub cross_slope_pct: f64,
     pub heave_freq_hz: [f64; 2],
     pub heave_damping: [f64; 2],
+    /// Body heave per m/s^2 of longitudinal force, mm (see `Vehicle::heave_per_accel_mm`).
+    pub heave_per_accel_mm: [f64; 2],
     /// Sensors: largest |bias| per axis (accelerometer m/s^2, gyro deg/s).
     pub acc_bias_max_mps2: f64,
     pub gyro_bias_max_dps: f64,
@@ -119,6 +121,7 @@ impl Default for RealisticSpec {
             cross_slope_pct: 0.0,
             heave_freq_hz: [1.1, 1.3],
             heave_damping: [0.25, 0.4],
+            heave_per_accel_mm: [0.0, 0.0],
             acc_bias_max_mps2: 0.3,
             gyro_bias_max_dps: 1.0,
         }
@@ -169,6 +172,13 @@ impl RealisticSpec {
             20.0,
             "give [min, max] above 0 Hz; a car body heaves at 1-1.5 Hz",
         )?;
+        let [lo, hi] = self.heave_per_accel_mm;
+        if !(lo.is_finite() && hi.is_finite() && -20.0 <= lo && lo <= hi && hi <= 20.0) {
+            anyhow::bail!(
+                "realistic.heave_per_accel_mm = [{lo}, {hi}]: give [min, max] within -20..20 mm \
+                 per m/s^2; a car body rises or sinks by 0-3 mm per m/s^2 as it pitches"
+            );
+        }
         range(
             "heave_damping",
             self.heave_damping,
@@ -367,6 +377,12 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         pitch_damping: pick(&mut g, r.pitch_damping),
         heave_freq_hz: pick(&mut gr, r.heave_freq_hz),
         heave_damping: pick(&mut gr, r.heave_damping),
+        // Drawn only when it varies, so that the drives without it stay as they were.
+        heave_per_accel_mm: if r.heave_per_accel_mm[0] == r.heave_per_accel_mm[1] {
+            r.heave_per_accel_mm[0]
+        } else {
+            pick(&mut gr, r.heave_per_accel_mm)
+        },
         rough_road_mps2: r.vibration_mps2,
         rough_road_long_share: r.vibration_long_share,
         idle_vibration_mps2: r.idle_vibration_mps2,

@@ -314,6 +314,8 @@ mod tests {
             "realistic.idle_vibration_mps2=-0.1",
             "realistic.idle_vibration_hz=1.0",
             "realistic.cross_slope_pct=30.0",
+            "realistic.heave_per_accel_mm=[3.0, 1.0]",
+            "realistic.heave_per_accel_mm=[0.0, 50.0]",
         ] {
             assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }

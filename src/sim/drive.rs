@@ -179,15 +179,20 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let (mut v, mut s) = (0.0f64, 0.0f64);
     // Suspension state (rad, rad/s). The car stands where the drive begins: the body
     // has settled on the grade under its axles.
-    let beta0 = if veh.pitch_from_grade {
+    let force0 = if veh.pitch_from_grade {
         let half_wb = 0.5 * veh.wheelbase_m;
         let (pf, pr) = (sc.road.elevation(half_wb), sc.road.elevation(-half_wb));
         let gam0 = (pf.1 - pr.1).atan2(pf.0 - pr.0);
-        veh.pitch_per_accel_deg.to_radians() * G_MPS2 * gam0.sin()
+        G_MPS2 * gam0.sin()
     } else {
         0.0
     };
+    let beta0 = veh.pitch_per_accel_deg.to_radians() * force0;
     let (mut beta, mut beta_dot) = (beta0, 0.0f64);
+    // Heave with the longitudinal force (m, m/s), settled too.
+    let heave_per_force = veh.heave_per_accel_mm * 1e-3;
+    let wh = std::f64::consts::TAU * veh.heave_freq_hz;
+    let (mut zf, mut zf_dot) = (heave_per_force * force0, 0.0f64);
     // The body's answer to the road's unevenness.
     let mut ride = super::roughness::Ride::new(
         &sc.road.roughness,
@@ -250,6 +255,15 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let load = sc.load_pitch_deg_at(t).to_radians();
         let shock: f64 = sc.shocks.iter().map(|x| x.pitch_rad(t)).sum();
         let (rho, heave_dd) = ride.step(sf, sr);
+        // The tyres pass the body the acceleration and, on a grade, gravity's share along
+        // the road (`pitch_from_grade`); it pitches and heaves with that force.
+        let force_long = if veh.pitch_from_grade {
+            a_long + G_MPS2 * gam.sin()
+        } else {
+            a_long
+        };
+        let zf_dd =
+            wh * wh * (heave_per_force * force_long - zf) - 2.0 * veh.heave_damping * wh * zf_dot;
         let pitch = gam + load + beta + shock + rho;
         let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), psi)
             * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -pitch)
@@ -265,7 +279,8 @@ pub fn simulate(sc: &Scenario) -> Drive {
         }
         let (sp, cp) = psi.sin_cos();
         let left = Vector3::new(-sp, cp, 0.0);
-        let acc = Vector3::new(along * cp, along * sp, vert + heave_dd) + left * (v * v * kappa);
+        let acc =
+            Vector3::new(along * cp, along * sp, vert + heave_dd + zf_dd) + left * (v * v * kappa);
         let kin = Kin {
             q,
             acc,
@@ -406,17 +421,12 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let v_next = (v + a_step * h).max(0.0);
         s += 0.5 * (v + v_next) * h;
         v = v_next;
-        // The tyres pass the body the acceleration and, on a grade, gravity's share along
-        // the road (`pitch_from_grade`).
-        let force_long = if veh.pitch_from_grade {
-            a_long + G_MPS2 * gam.sin()
-        } else {
-            a_long
-        };
         let target = veh.pitch_per_accel_deg.to_radians() * force_long;
         let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
         beta_dot += beta_dd * h;
         beta += beta_dot * h;
+        zf_dot += zf_dd * h;
+        zf += zf_dot * h;
     }
     Drive { imu, wheels, truth }
 }

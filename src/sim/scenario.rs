@@ -202,6 +202,13 @@ pub struct Vehicle {
     /// it follows road unevenness (the pitch mode above does so for pitch).
     pub heave_freq_hz: f64,
     pub heave_damping: f64,
+    /// Heave of the body per m/s^2 of the longitudinal force that pitches it, mm,
+    /// positive rising when pulling away; it follows through the heave mode. The
+    /// suspension's geometry (anti-dive, anti-squat) and a stiffness balance that does
+    /// not put the pitch node under the centre of mass make the body rise or sink as it
+    /// pitches, so under a steady force it turns about another point than it rocks about
+    /// when it swings free.
+    pub heave_per_accel_mm: f64,
     /// Track width for wheel-speed differences in turns, m.
     pub track_m: f64,
     /// Distance between the axles, m; the body pitch follows the road chord between them.
@@ -234,6 +241,7 @@ impl Default for Vehicle {
             pitch_damping: 0.4,
             heave_freq_hz: 1.2,
             heave_damping: 0.3,
+            heave_per_accel_mm: 0.0,
             track_m: 1.6,
             wheelbase_m: 2.7,
             rough_road_mps2: 0.0,
