@@ -38,6 +38,27 @@ const REST_AVG_MAX: usize = 16;
 /// and does not teach it; this many such intervals in a row set a new rate.
 const INTERVAL_OUTLIER: f64 = 1.5;
 const INTERVAL_RUN: u32 = 8;
+
+/// Share of the IMU's swing at rest (omega x lever arm) that rotation about the pitch
+/// centre does not explain: the heave that rides along with the pitch, the arm's own
+/// error. A body heaving 2 mm per m/s^2 of the force the stop released while it
+/// pitches 0.25 deg per m/s^2 about a centre 2 m behind the IMU swings a fifth more or
+/// less than the arm says, and the arm learnt from the same rocking takes up most of
+/// it. Sized on the realistic drives with and without such a heave: with it an
+/// INS-grade accelerometer reads late in the stop and a 300 ug/sqrt(Hz) one near the
+/// edge, each where its deceleration windows came out best.
+const SWING_UNMODELLED_SHARE: f64 = 0.03;
+
+/// Most samples `rest_velocity` reads (1.5 s at 300 Hz).
+const REST_VELOCITY_MAX_SAMPLES: usize = 450;
+
+/// How far into a stop the velocity at its rest edge is read from, s (see
+/// `rest_velocity`): by then a body's swing has fallen to a tenth or less.
+pub(super) const REST_VELOCITY_REACH_S: f64 = 1.5;
+
+/// Span of the plain mean `rest_velocity` takes at the rest edge, s.
+const REST_VELOCITY_S: f64 = 0.25;
+
 /// Gain of the interval's running mean (about 5 s at 100 Hz: frame jitter moves it by
 /// less than 0.1 %).
 const INTERVAL_GAIN: f64 = 0.002;
@@ -453,57 +474,121 @@ impl Estimator {
     }
 
     /// Velocity of the IMU at sample `i` (frame of its window attitude `q_i`, which
-    /// assumes `acc_bias_mps2` removed, m/s) while the
-    /// pitch centre is at rest but the body may still rock on its suspension. Each rest
-    /// sample j on the `later` side gives omega_j x lever arm, carried to `i` by the
-    /// integrated acceleration between them; the mean over `REST_VELOCITY_S` averages
-    /// out gyro noise (a single sample's noise times a 2 m lever arm costs about 0.1 deg
-    /// of slope). Smoothing the rate at `i` itself instead is biased right at the stop,
-    /// where the rocking starts with a kink. The samples of the first 0.02 s are left out
-    /// in case `i` is a step early.
+    /// assumes `acc_bias_mps2` removed, m/s) while the pitch centre is at rest but the
+    /// body may still rock on its suspension. Each rest sample j on the `later` side
+    /// gives omega_j x lever arm carried to `i` by the integrated acceleration between
+    /// them. With `reach_s` None the estimate is their mean over the first
+    /// `REST_VELOCITY_S`, which averages out the gyro's noise (a single sample's noise
+    /// times a 2 m lever arm costs about 0.1 deg of slope). Right at the stop, though,
+    /// the swing is largest, and with it what rotation about the pitch centre misses
+    /// (`SWING_UNMODELLED_SHARE`: a body that heaves as it pitches); a second later the
+    /// swing has died out, but the accelerometer's noise integrated on the way has
+    /// grown. Given `reach_s`, the samples up to that far are weighed by their own
+    /// errors (that share of the swing, the gyro's noise in one sample times the arm),
+    /// and the span read is the one whose estimate has the least predicted error,
+    /// counting the unmodelled swing as shared by neighbouring samples and the
+    /// integrated noise as the random walk it is (its density learnt at rest). The
+    /// samples of the first 0.02 s are left out in case `i` is a step early; a knock
+    /// ends a weighed span (see below).
     pub(super) fn rest_velocity(
         &self,
         q_i: UnitQuaternion<f64>,
         i: usize,
         later: bool,
+        reach_s: Option<f64>,
         g: f64,
     ) -> Vector3<f64> {
-        const REST_VELOCITY_S: f64 = 0.25;
+        let weigh = reach_s.is_some();
+        let reach_s = reach_s.unwrap_or(REST_VELOCITY_S);
         let skip = self.samples_in(0.02);
         let bias = self.bias_rps.unwrap_or_else(Vector3::zeros);
         let acc_bias = self.acc_bias_mps2();
         let lever = self.lever_arm();
         let up = Vector3::new(0.0, 0.0, g);
+        let dt_s = self.sample_dt_s.0;
+        let walk_var_per_s = self
+            .acc_noise
+            .density_per_rthz(dt_s)
+            .unwrap_or(self.cfg.acc_noise_ug_rthz * 1e-6 * super::STANDARD_GRAVITY_MPS2)
+            .powi(2);
+        let gyro_var = self
+            .gyro_noise
+            .density_per_rthz(dt_s)
+            .unwrap_or(self.cfg.gyro_noise_dps_rthz.to_radians())
+            .powi(2)
+            / dt_s.max(1e-4)
+            * lever.norm_squared();
         let n = self.hist.len();
         let t_i = self.hist.get(i).t_s;
+        // (time from i s, estimate m/s, weight, unmodelled swing m/s) per sample read.
+        let mut read = [(0.0, Vector3::zeros(), 0.0, 0.0); REST_VELOCITY_MAX_SAMPLES];
+        let mut count = 0usize;
         let (mut q, mut dv) = (q_i, Vector3::zeros());
-        let (mut sum, mut count) = (Vector3::zeros(), 0usize);
         let mut j = i;
-        loop {
+        while count < read.len() {
             let next = if later { j + 1 } else { j.wrapping_sub(1) };
             if next >= n {
                 break;
             }
             let (a, b) = (self.hist.get(j), self.hist.get(next));
-            if (b.t_s - t_i).abs() > REST_VELOCITY_S {
+            let span_s = (b.t_s - t_i).abs();
+            if span_s > reach_s {
                 break;
             }
             let dt = b.t_s - a.t_s;
             let q_next = attitude::propagate(&q, &((a.gyro_rps() + b.gyro_rps()) * 0.5 - bias), dt);
+            let acc_next = q_next * (b.acc() - acc_bias) - up;
+            // A knock (a door, someone boarding: 5-8 Hz, several m/s^2 at the IMU) is
+            // integrated a few per cent off at the IMU's rate, which every later sample
+            // would carry: a long span ends before it. (Over the short span at the edge
+            // the samples before a knock alone did worse than its integration error.)
+            if weigh && acc_next.amax() > super::lever::MAX_ROCKING_MPS2 {
+                break;
+            }
             // dv = v_next - v_i, in time order whichever way the walk goes.
-            dv += ((q * (a.acc() - acc_bias) - up) + (q_next * (b.acc() - acc_bias) - up))
-                * (0.5 * dt);
+            dv += ((q * (a.acc() - acc_bias) - up) + acc_next) * (0.5 * dt);
             q = q_next;
             j = next;
             if j.abs_diff(i) > skip {
-                sum += q * (b.gyro_rps() - bias).cross(&lever) - dv;
+                let swing = q * (b.gyro_rps() - bias).cross(&lever);
+                let unmodelled = SWING_UNMODELLED_SHARE * swing.norm();
+                let w = if weigh {
+                    1.0 / (unmodelled * unmodelled + gyro_var).max(1e-12)
+                } else {
+                    1.0
+                };
+                read[count] = (span_s, swing - dv, w, unmodelled);
                 count += 1;
             }
         }
         if count == 0 {
             return q_i * (self.hist.get(i).gyro_rps() - bias).cross(&lever);
         }
-        sum / count as f64
+        // Predicted error variance of the estimate from the first k samples read, from
+        // running sums: the weight W, the weighted unmodelled swing A (shared, so it
+        // adds as (A / W)^2), the gyro's share B, and for the random walk
+        // C = sum_jl w_j w_l min(t_j, t_l): a sample later than all before it adds
+        // w^2 t + 2 w sum_l w_l t_l.
+        let (mut big_w, mut a_sum, mut b_sum, mut c_sum, mut wt_sum) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let (mut best, mut best_var) = (count, f64::INFINITY);
+        for (k, &(t, _, w, u)) in read[..count].iter().enumerate().filter(|_| weigh) {
+            c_sum += w * w * t + 2.0 * w * wt_sum;
+            wt_sum += w * t;
+            big_w += w;
+            a_sum += w * u;
+            b_sum += w * w * gyro_var;
+            let var = (a_sum / big_w).powi(2) + (b_sum + walk_var_per_s * c_sum) / (big_w * big_w);
+            if var < best_var {
+                best_var = var;
+                best = k + 1;
+            }
+        }
+        let (sum, weight) = read[..best]
+            .iter()
+            .fold((Vector3::zeros(), 0.0), |(s, w), r| {
+                (s + r.1 * r.2, w + r.2)
+            });
+        sum / weight
     }
 
     /// Whether the body's turn between consecutive samples `a` and `b` is unknown: a

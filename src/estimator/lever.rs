@@ -24,7 +24,7 @@ const PRIOR_WEIGHT: f64 = 0.03;
 /// a door slammed or someone sitting down gives the body a knock whose sharp edge
 /// the smoothing of the rates and of the force do not follow alike, and the fit
 /// comes out 10-40 % short on such a stop. m/s^2.
-const MAX_ROCKING_MPS2: f64 = 1.5;
+pub(super) const MAX_ROCKING_MPS2: f64 = 1.5;
 
 /// Samples this far from what the arm in use predicts are not rocking (braking left
 /// in), m/s^2. The test is symmetric about the prediction.
