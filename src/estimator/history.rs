@@ -57,7 +57,12 @@ const REST_VELOCITY_MAX_SAMPLES: usize = 450;
 pub(super) const REST_VELOCITY_REACH_S: f64 = 1.5;
 
 /// Span of the plain mean `rest_velocity` takes at the rest edge, s.
-const REST_VELOCITY_S: f64 = 0.25;
+pub(super) const REST_VELOCITY_S: f64 = 0.25;
+
+/// A stop whose body settled later than this after its rest edge was moved by more
+/// than its swing on the way (a load ramping in, a knock): its velocity is read at the
+/// edge, s.
+pub(super) const REST_VELOCITY_SETTLED_S: f64 = 2.0;
 
 /// Gain of the interval's running mean (about 5 s at 100 Hz: frame jitter moves it by
 /// less than 0.1 %).
@@ -571,16 +576,19 @@ impl Estimator {
         // w^2 t + 2 w sum_l w_l t_l.
         let (mut big_w, mut a_sum, mut b_sum, mut c_sum, mut wt_sum) = (0.0, 0.0, 0.0, 0.0, 0.0);
         let (mut best, mut best_var) = (count, f64::INFINITY);
-        for (k, &(t, _, w, u)) in read[..count].iter().enumerate().filter(|_| weigh) {
-            c_sum += w * w * t + 2.0 * w * wt_sum;
-            wt_sum += w * t;
-            big_w += w;
-            a_sum += w * u;
-            b_sum += w * w * gyro_var;
-            let var = (a_sum / big_w).powi(2) + (b_sum + walk_var_per_s * c_sum) / (big_w * big_w);
-            if var < best_var {
-                best_var = var;
-                best = k + 1;
+        if weigh {
+            for (k, &(t, _, w, u)) in read[..count].iter().enumerate() {
+                c_sum += w * w * t + 2.0 * w * wt_sum;
+                wt_sum += w * t;
+                big_w += w;
+                a_sum += w * u;
+                b_sum += w * w * gyro_var;
+                let var =
+                    (a_sum / big_w).powi(2) + (b_sum + walk_var_per_s * c_sum) / (big_w * big_w);
+                if var < best_var {
+                    best_var = var;
+                    best = k + 1;
+                }
             }
         }
         let (sum, weight) = read[..best]

@@ -1002,16 +1002,17 @@ impl Estimator {
         let setup = self.window_setup(q0, g_win);
         // With a quiet accelerometer the velocity at the rest edge is read where the
         // swing has died out, no further than the last sample at rest, on a body that
-        // settled within that reach of the edge: one that took longer (a load ramping
-        // in, a knock) was moved by more than its swing, and is read at the edge, as
-        // with a noisy accelerometer, whose noise integrated over the second outweighs
-        // the swing's share (measured: the late read on a 300 ug/sqrt(Hz) part was
-        // 0.005-0.02 deg worse in rms per window kind).
+        // settled within `REST_VELOCITY_SETTLED_S` of the edge. A noisy accelerometer's
+        // noise integrated over that second outweighs the swing's share (measured: the
+        // late read on a 300 ug/sqrt(Hz) part was 0.005-0.02 deg worse in rms per window
+        // kind), and a load that came in before the stop settled moved the body by more
+        // than its swing: both are read at the edge.
+        use super::history::{REST_VELOCITY_REACH_S, REST_VELOCITY_S, REST_VELOCITY_SETTLED_S};
         let t_edge = self.hist.get(rest).t_s;
         let reach_s = (self.quiet_accelerometer()
             && !load_before_settled
-            && st.seg_first_s - t_edge <= super::history::REST_VELOCITY_REACH_S + 0.5)
-            .then(|| (st.seg_last_s - t_edge).clamp(0.25, super::history::REST_VELOCITY_REACH_S));
+            && st.seg_first_s - t_edge <= REST_VELOCITY_SETTLED_S)
+            .then(|| (st.seg_last_s - t_edge).clamp(REST_VELOCITY_S, REST_VELOCITY_REACH_S));
         let v0 = self.rest_velocity(q0, rest, true, reach_s, g_win);
         self.bwd.start(setup, v0);
         let mut result = None;
