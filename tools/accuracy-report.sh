@@ -87,6 +87,14 @@ sens() {
     sens "urban, engine idling (0.2 m/s^2 rms at 25 Hz)" urban realistic.idle_vibration_mps2=0.2
     sens "stop-and-go, engine idling (0.2 m/s^2 rms at 25 Hz)" stop-and-go \
         realistic.idle_vibration_mps2=0.2
+    sens "urban, INS-grade IMU and an idling engine (0.2 m/s^2 at 25 Hz)" urban \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        realistic.idle_vibration_mps2=0.2
+    sens "stop-and-go, INS-grade IMU and an idling engine (0.2 m/s^2 at 25 Hz)" stop-and-go \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        realistic.idle_vibration_mps2=0.2
 } > "$tmp/sens"
 run bench accuracy --ablation --scenarios scenarios/realistic/*.toml --seeds 4 > "$tmp/ablreal"
 
