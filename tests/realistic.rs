@@ -2105,3 +2105,48 @@ fn a_body_that_heaves_as_it_pitches_does_not_bias_the_deceleration_windows() {
         "rms {r_heave:.3} against {r_level:.3}"
     );
 }
+
+/// An INS-grade IMU next to an engine idling at 0.2 m/s^2 rms (25 Hz, at rest as in
+/// motion), frames neither dropped nor late: the windows read as well as without the
+/// engine. Counting the shaking as noise made the accelerometer look ten times worse
+/// than it is (the velocity-free fit instead of the chord), means over spans that
+/// were not a whole number of its periods kept mm/s^2 of it in the gravity magnitude
+/// (0.1 deg of slope each on a gentle drive-off), and the first stop's magnitude held
+/// to its first quarter-second.
+#[test]
+fn an_idling_engine_next_to_a_good_imu_leaves_its_windows_as_good() {
+    let sensors = |x: &mut Sensors| {
+        ins_grade(x);
+        x.imu_drop_prob = 0.0;
+        x.imu_jitter_ms = [0.0, 0.0];
+    };
+    let errs = |idle: f64| {
+        let mut all = Vec::new();
+        for seed in [1401, 1402, 1403] {
+            let r = RealisticSpec {
+                idle_vibration_mps2: idle,
+                ..RealisticSpec::default()
+            };
+            for case in with_sensors(spec(seed, 10, r), sensors).cases() {
+                all.extend(window_errors(&case, EstimatorConfig::default(), None));
+            }
+        }
+        all
+    };
+    let (still, shaken) = (errs(0.0), errs(0.2));
+    let (a, b) = (rms(&still), rms(&shaken));
+    eprintln!(
+        "windows {} / {}, rms {a:.3} / {b:.3}",
+        still.len(),
+        shaken.len()
+    );
+    // Measured: 94 windows at 0.085 deg rms without the engine, 92 at 0.087 with it;
+    // 0.171 when the shaking counted as noise and the means kept it.
+    assert!(
+        shaken.len() * 10 >= still.len() * 9,
+        "{} of {} windows",
+        shaken.len(),
+        still.len()
+    );
+    assert!(b < 1.25 * a, "rms {b:.3} with the engine, {a:.3} without");
+}

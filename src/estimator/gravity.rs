@@ -2,6 +2,7 @@
 
 use super::Estimator;
 use super::attitude;
+use super::vibration;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 impl Estimator {
@@ -14,7 +15,16 @@ impl Estimator {
     /// ug/sqrt(Hz) at 100 Hz, or an engine's vibration at idle). A block also ends at
     /// a gap, so that one mean never spans two stops (gravity along two body
     /// directions).
-    pub(super) fn update_gravity(&mut self, t_s: f64, f: &Vector3<f64>) {
+    ///
+    /// `smoothed` is the same sample read through the vibration triangle (`None` where
+    /// a missing sample spoils it): blocks of those teach `GravityFilter::r_smooth`, and
+    /// measure the magnitude when the IMU vibrates.
+    pub(super) fn update_gravity(
+        &mut self,
+        t_s: f64,
+        f: &Vector3<f64>,
+        smoothed: Option<&Vector3<f64>>,
+    ) {
         if self
             .gravity_block
             .last_s
@@ -23,6 +33,7 @@ impl Estimator {
             self.flush_gravity_block();
             // The next block is not the continuation of this one.
             self.gravity_block.prev = None;
+            self.gravity_block.prev_smooth = None;
         }
         if let Some(k) = self.gravity.as_mut() {
             k.learn_noise(f);
@@ -30,6 +41,13 @@ impl Estimator {
         let b = &mut self.gravity_block;
         b.sum += f;
         b.n += 1;
+        if let Some(s) = smoothed {
+            b.smooth_sum += s;
+            b.smooth_n += 1;
+        }
+        let m = f.norm();
+        b.norm_sum += m;
+        b.norm_sq_sum += m * m;
         b.last_s = Some(t_s);
         if b.n as usize >= self.samples_in(GRAVITY_BLOCK_S) {
             self.flush_gravity_block();
@@ -37,7 +55,7 @@ impl Estimator {
     }
 
     fn flush_gravity_block(&mut self) {
-        let prev = self.gravity_block.prev;
+        let (prev, prev_smooth) = (self.gravity_block.prev, self.gravity_block.prev_smooth);
         let b = std::mem::take(&mut self.gravity_block);
         let Some(t_s) = b.last_s else {
             return;
@@ -48,14 +66,44 @@ impl Estimator {
         let mean = b.sum / f64::from(b.n);
         let m = mean.norm();
         self.gravity_block.prev = Some((m, b.n));
+        // A block whose every sample was smoothed cleanly; its neighbour's smoothed
+        // mean differs from it by the noise below the triangle's band.
+        let smooth = (b.smooth_n == b.n).then(|| b.smooth_sum / f64::from(b.n));
+        self.gravity_block.prev_smooth = smooth.map(|s| (s.norm(), b.n));
+        let box_n = self.vibration_box();
         let q = self.cfg.gravity_walk_mps2_rts;
         let k = self.gravity.get_or_insert_with(|| {
-            GravityFilter::new(m, 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2)
+            let mut k = GravityFilter::new(m, 1e-3, [0.0; 2], GravityFilter::BIAS_PRIOR_MPS2);
+            // The filter learns the noise only from the samples after its first block,
+            // which is known to no better than its own spread: taken at the nominal
+            // 1e-3 (m/s^2)^2, a block shaken by an engine at forty times that held
+            // the magnitude at its own, 13 mm/s^2 off, through the first stop.
+            if b.n >= 2 {
+                let nf = f64::from(b.n);
+                let var = (b.norm_sq_sum - b.norm_sum * b.norm_sum / nf) / (nf - 1.0);
+                k.r = k.r.max(var);
+            }
+            k
         });
         if let Some((m_prev, n_prev)) = prev {
             k.learn_block_noise(m - m_prev, n_prev, b.n);
         }
-        k.update(t_s, &mean, q, b.n);
+        if let (Some(s), Some((m_prev, n_prev))) = (smooth, prev_smooth) {
+            let gain = vibration::smoothed_pair_gain(n_prev as usize, b.n as usize, box_n);
+            k.learn_smooth_noise((s.norm() - m_prev) / gain.sqrt(), n_prev, b.n);
+        }
+        if k.vibration_seen() {
+            // Smoothed samples only: a block spoilt by a missing sample still holds its
+            // clean ones. The filter takes them from the first pairs that show the
+            // vibration: a noise that is white reads the same through the triangle, and
+            // the first stop's drive-off needs the magnitude.
+            if b.smooth_n > 0 {
+                let s = b.smooth_sum / f64::from(b.smooth_n);
+                k.update_mean(t_s, &s, q, k.r_smooth / f64::from(b.smooth_n));
+            }
+        } else {
+            k.update(t_s, &mean, q, b.n);
+        }
     }
 
     /// Horizontal accelerometer bias the stop filter has seen, body axes, m/s^2 (zero
@@ -151,6 +199,18 @@ const GRAVITY_BLOCK_S: f64 = 0.25;
 /// `GravityFilter::noise`).
 const BLOCK_PAIRS_MIN: u32 = 20;
 
+/// Pairs of consecutive smoothed blocks compared before they can tell a vibration (3 s
+/// of settled samples): the first stop's drive-off already needs to know it. Both
+/// `r` and `r_smooth` start from the same nominal noise, and `r` follows a white
+/// noise's sample spread faster than `r_smooth` follows its block means, so a white
+/// noise never looks like a vibration while they settle.
+const SMOOTH_PAIRS_MIN: u32 = 12;
+
+/// The raw samples spread at least this many times more than block means say (per
+/// sample) when the IMU vibrates: white noise gives 1, an engine's 0.2 m/s^2 at 25 Hz
+/// next to a 30 ug/sqrt(Hz) accelerometer several hundred.
+const VIBRATION_RATIO_MIN: f64 = 4.0;
+
 /// A gap between settled samples longer than this closes the gravity block, s.
 const GRAVITY_BLOCK_GAP_S: f64 = 0.1;
 
@@ -163,6 +223,14 @@ pub(super) struct GravityBlock {
     /// Magnitude of the mean and sample count of the block just before, when this one
     /// continues it (no gap between them).
     prev: Option<(f64, u32)>,
+    /// The same samples read through the vibration triangle, where it read them.
+    smooth_sum: Vector3<f64>,
+    smooth_n: u32,
+    /// `prev` of the smoothed samples, when all of that block's were.
+    prev_smooth: Option<(f64, u32)>,
+    /// Sum of the samples' magnitudes and of their squares, m/s^2 and (m/s^2)^2.
+    norm_sum: f64,
+    norm_sq_sum: f64,
 }
 
 /// What one stop's mean magnitude leaves unexplained beyond its sample noise, m/s^2.
@@ -188,6 +256,10 @@ pub(super) struct GravityFilter {
     /// The same learnt from consecutive block means, and how many pairs taught it.
     pub(super) r_block: f64,
     pub(super) block_pairs: u32,
+    /// The same from consecutive means of smoothed samples (`vibration`), told as the
+    /// white noise per raw sample that would spread them that far, and its pairs.
+    pub(super) r_smooth: f64,
+    pub(super) smooth_pairs: u32,
     pub(super) last_t: Option<f64>,
 }
 
@@ -203,6 +275,8 @@ impl GravityFilter {
             r: 1e-3,
             r_block: 1e-3,
             block_pairs: 0,
+            r_smooth: 1e-3,
+            smooth_pairs: 0,
             last_t: None,
         }
     }
@@ -242,10 +316,37 @@ impl GravityFilter {
         self.block_pairs = self.block_pairs.saturating_add(1);
     }
 
+    /// Learn `r_smooth` from `d`, the difference between consecutive smoothed block
+    /// means already divided by the triangle's share of their white noise.
+    pub(super) fn learn_smooth_noise(&mut self, d: f64, n0: u32, n1: u32) {
+        if !d.is_finite() || n0 == 0 || n1 == 0 {
+            return;
+        }
+        let r = d * d / (1.0 / f64::from(n0) + 1.0 / f64::from(n1));
+        self.r_smooth = (0.95 * self.r_smooth + 0.05 * r).max(1e-8);
+        self.smooth_pairs = self.smooth_pairs.saturating_add(1);
+    }
+
+    /// Whether the IMU vibrates at rest: the raw samples spread `VIBRATION_RATIO_MIN`
+    /// times more than the smoothed block means say white noise would (the body's slow
+    /// rocking spreads block means more than samples, never less).
+    pub(super) fn vibrating(&self) -> bool {
+        self.smooth_pairs >= SMOOTH_PAIRS_MIN && self.vibration_seen()
+    }
+
+    /// What `vibrating` asks of the noise, however few pairs have taught it.
+    fn vibration_seen(&self) -> bool {
+        self.smooth_pairs > 0 && self.r > VIBRATION_RATIO_MIN * self.r_smooth
+    }
+
     /// Variance per sample a mean of n samples is known to within, over n, (m/s^2)^2:
     /// the per-sample spread, or what consecutive block means show when that is less
-    /// (vibration faster than a block), once enough of them have been compared.
+    /// (vibration faster than a block), once enough of them have been compared; on a
+    /// vibrating IMU what its smoothed blocks show.
     pub(super) fn noise(&self) -> f64 {
+        if self.vibrating() {
+            return self.r_smooth;
+        }
         if self.block_pairs >= BLOCK_PAIRS_MIN {
             self.r.min(self.r_block)
         } else {
@@ -255,11 +356,19 @@ impl GravityFilter {
 
     /// Update with `f`, the mean of `n` samples of per-sample variance `r`.
     pub(super) fn update(&mut self, t_s: f64, f: &Vector3<f64>, q: f64, n: u32) {
-        if !(f.norm() > 0.0) || n == 0 {
+        if n == 0 {
+            return;
+        }
+        self.update_mean(t_s, f, q, self.noise() / f64::from(n));
+    }
+
+    /// Update with a mean force `f` known to within variance `var`, (m/s^2)^2.
+    pub(super) fn update_mean(&mut self, t_s: f64, f: &Vector3<f64>, q: f64, var: f64) {
+        if !(f.norm() > 0.0) || !(var > 0.0) {
             return;
         }
         let y = self.innovation(t_s, f, q);
-        self.correct(f, y, self.noise() / f64::from(n));
+        self.correct(f, y, var);
     }
 
     /// Update with a measurement of nominal variance `r`, (m/s^2)^2, that counts as
@@ -341,7 +450,7 @@ mod tests {
         let mut rng = Normal(0x9E37_79B9_7F4A_7C15);
         for k in 0..100_000 {
             let noise = Vector3::new(rng.draw(), rng.draw(), rng.draw()) * sd;
-            est.update_gravity(k as f64 * 0.01, &(truth + noise));
+            est.update_gravity(k as f64 * 0.01, &(truth + noise), None);
         }
         let learnt = est.gravity.unwrap().magnitude(&truth.normalize());
         // Measured: 0.6 mm/s^2 off; fed sample by sample (the old filter), 4.1 mm/s^2.
@@ -369,7 +478,7 @@ mod tests {
                 let f = f0
                     + Vector3::new(0.0, 0.0, tone)
                     + Vector3::new(rng.draw(), rng.draw(), rng.draw()) * 0.03;
-                est.update_gravity(t, &f);
+                est.update_gravity(t, &f, None);
                 sum += f;
                 t += 0.01;
             }

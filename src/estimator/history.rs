@@ -512,8 +512,7 @@ impl Estimator {
         let up = Vector3::new(0.0, 0.0, g);
         let dt_s = self.sample_dt_s.0;
         let walk_var_per_s = self
-            .acc_noise
-            .density_per_rthz(dt_s)
+            .walk_acc_noise_per_rthz()
             .unwrap_or(self.cfg.acc_noise_ug_rthz * 1e-6 * super::STANDARD_GRAVITY_MPS2)
             .powi(2);
         let gyro_var = self

@@ -26,6 +26,7 @@ mod ring;
 mod standstill;
 mod stillness;
 pub mod types;
+mod vibration;
 pub mod window;
 
 pub use average::{Averager, Combined, PairHandle};

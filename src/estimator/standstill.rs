@@ -610,15 +610,20 @@ impl Estimator {
     pub(super) fn commit_settled(&mut self, s: &ImuSample, emit: &mut dyn FnMut(Event)) {
         // The gravity reference is the specific force of the pitch centre: what the IMU
         // would read without the rocking tail.
-        let swing = self.lever_acc_at(self.index_at(s.t_s));
+        let i = self.index_at(s.t_s);
+        let swing = self.lever_acc_at(i);
         let f = s.acc() - swing;
+        let smoothed = self.smoothed_acc_at(i).map(|a| a - swing);
         let calm = swing.norm() <= self.cfg.rest_swing_gate_mps2;
         let gain = (self.sample_dt_s.0 / CALM_SHARE_TAU_S).min(1.0);
         self.calm_share += (f64::from(u8::from(calm)) - self.calm_share) * gain;
         if calm || self.calm_share < CALM_SHARE_MIN {
-            self.update_gravity(s.t_s, &f);
+            self.update_gravity(s.t_s, &f, smoothed.as_ref());
         }
         let min_n = self.min_settled();
+        // On a vibrating IMU the stop averages the smoothed samples; one that a missing
+        // sample spoilt stays out of the stop's sums but keeps its block open.
+        let f = if self.vibrating() { smoothed } else { Some(f) };
         let Some(st) = self.standstill.as_mut() else {
             self.update_bias(s);
             return;
@@ -640,12 +645,14 @@ impl Estimator {
         if st.block_n == 0 {
             st.block_t0_s = s.t_s;
         }
-        st.block_gyro_sum += s.gyro_rps();
-        st.block_sum += f;
-        st.block_n += 1;
-        if calm {
-            st.block_calm_sum += f;
-            st.block_calm_n += 1;
+        if let Some(f) = f {
+            st.block_gyro_sum += s.gyro_rps();
+            st.block_sum += f;
+            st.block_n += 1;
+            if calm {
+                st.block_calm_sum += f;
+                st.block_calm_n += 1;
+            }
         }
         st.block_last_s = s.t_s;
         if s.t_s - st.block_t0_s >= self.cfg.load_block_s {
@@ -1362,7 +1369,11 @@ impl Estimator {
         };
         let setup = self.window_setup(q0, g_win);
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
-        let settled_at_start = settled && self.hist.get(first).t_s - st.seg_last_s < 1.0;
+        // An IMU that vibrates is never at rest, though: its speed swings by up to the
+        // vibration over its angular frequency (1.8 mm/s for 0.28 m/s^2 at 25 Hz, 5 mm
+        // of height over a gentle 3 s window), which the plain read averages out.
+        let settled_at_start =
+            settled && self.hist.get(first).t_s - st.seg_last_s < 1.0 && !self.vibrating();
         let v0 = if settled_at_start {
             Vector3::zeros()
         } else {

@@ -93,33 +93,47 @@ impl Estimator {
             })
     }
 
-    /// How much wider the accelerometer gates (`still_acc_std_mps2`,
-    /// `rest_acc_tol_mps2`, `drive_off_speed_mps`) are than configured: they hold for
-    /// an accelerometer with up to `acc_noise_ug_rthz` of noise, and grow in proportion
-    /// with the noise learnt at rest when it is higher (an engine's vibration at idle
-    /// counts as noise). Never below 1, never above `MAX_GATE_SCALE`.
+    /// How much wider the per-sample accelerometer gates (`still_acc_std_mps2`,
+    /// `rest_acc_tol_mps2`) are than configured: they hold for an accelerometer with up
+    /// to `acc_noise_ug_rthz` of noise, and grow in proportion with the spread learnt
+    /// at rest when it is higher (an engine's vibration at idle counts).
     pub(super) fn acc_gate_scale(&self) -> f64 {
-        if !self.cfg.scale_acc_gates {
-            return 1.0;
+        self.acc_scale(self.acc_noise.density_per_rthz(self.sample_dt_s.0))
+    }
+
+    /// `density` (m/s^2/sqrt(Hz)) over the configured `acc_noise_ug_rthz`; 1 with no
+    /// density or `scale_acc_gates` off. Never below 1, never above `MAX_GATE_SCALE`.
+    fn acc_scale(&self, density: Option<f64>) -> f64 {
+        match density {
+            Some(d) if self.cfg.scale_acc_gates => {
+                (ug_rthz(d) / self.cfg.acc_noise_ug_rthz).clamp(1.0, MAX_GATE_SCALE)
+            }
+            _ => 1.0,
         }
-        self.learnt_acc_noise_ug_rthz().map_or(1.0, |d| {
-            (d / self.cfg.acc_noise_ug_rthz).clamp(1.0, MAX_GATE_SCALE)
-        })
     }
 
-    /// The accelerometer noise learnt at rest, ug/sqrt(Hz); `None` before it is learnt.
-    fn learnt_acc_noise_ug_rthz(&self) -> Option<f64> {
-        self.acc_noise
-            .density_per_rthz(self.sample_dt_s.0)
-            .map(|d| d / (1e-6 * super::STANDARD_GRAVITY_MPS2))
-    }
-
-    /// Whether the accelerometer's noise learnt at rest is below
-    /// `chord_below_acc_noise_ug_rthz`: then the window's slope is the chord's. Not
-    /// before the noise is learnt.
+    /// Whether the accelerometer noise a walk integrates (`walk_acc_noise_per_rthz`) is
+    /// below `chord_below_acc_noise_ug_rthz`: then the window's slope is the chord's.
+    /// Not before the noise is learnt.
     pub(super) fn quiet_accelerometer(&self) -> bool {
-        self.learnt_acc_noise_ug_rthz()
-            .is_some_and(|d| d < self.cfg.chord_below_acc_noise_ug_rthz)
+        self.walk_acc_noise_per_rthz()
+            .is_some_and(|d| ug_rthz(d) < self.cfg.chord_below_acc_noise_ug_rthz)
+    }
+
+    /// Whether the IMU vibrates at rest (an idling engine; see `vibration`).
+    pub(super) fn vibrating(&self) -> bool {
+        self.gravity.is_some_and(|g| g.vibrating())
+    }
+
+    /// The accelerometer noise a walk integrates, m/s^2/sqrt(Hz): the noise learnt at
+    /// rest, or on a vibrating IMU what is left of it below the vibration; `None`
+    /// before it is learnt.
+    pub(super) fn walk_acc_noise_per_rthz(&self) -> Option<f64> {
+        let sample = self.acc_noise.density_per_rthz(self.sample_dt_s.0)?;
+        Some(match self.gravity {
+            Some(g) if g.vibrating() => sample.min((g.r_smooth * self.sample_dt_s.0).sqrt()),
+            _ => sample,
+        })
     }
 
     /// `still_acc_std_mps2` widened for a noisy accelerometer, m/s^2.
@@ -128,9 +142,10 @@ impl Estimator {
     }
 
     /// `drive_off_speed_mps` widened for a noisy accelerometer, m/s: the speed the IMU
-    /// integrates over a stop walks with the noise.
+    /// integrates over a stop walks with the noise (not with a vibration, which
+    /// integrates to nothing).
     pub(super) fn drive_off_speed_mps(&self) -> f64 {
-        self.cfg.drive_off_speed_mps * self.acc_gate_scale()
+        self.cfg.drive_off_speed_mps * self.acc_scale(self.walk_acc_noise_per_rthz())
     }
 
     /// `rest_acc_tol_mps2` widened for a noisy accelerometer, m/s^2.
@@ -187,6 +202,11 @@ pub(super) struct NoiseFloor {
     log_sd: Option<f64>,
     /// Samples per window the quantile was last corrected with.
     window_samples: usize,
+}
+
+/// A density in m/s^2/sqrt(Hz) in ug/sqrt(Hz).
+fn ug_rthz(d: f64) -> f64 {
+    d / (1e-6 * super::STANDARD_GRAVITY_MPS2)
 }
 
 /// Widest the gyro and accelerometer gates grow, as a multiple of their configured size.
