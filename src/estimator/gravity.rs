@@ -200,11 +200,10 @@ const GRAVITY_BLOCK_S: f64 = 0.25;
 const BLOCK_PAIRS_MIN: u32 = 20;
 
 /// Pairs of consecutive smoothed blocks compared before they can tell a vibration (3 s
-/// of settled samples): the first stop's drive-off already needs to know it. Both
-/// `r` and `r_smooth` start from the same nominal noise, and `r` follows a white
-/// noise's sample spread faster than `r_smooth` follows its block means, so a white
-/// noise never looks like a vibration while they settle.
+/// of settled samples; the first stop's drive-off already needs to know it), and
+/// before the gravity filter takes smoothed blocks (1 s).
 const SMOOTH_PAIRS_MIN: u32 = 12;
+const SMOOTH_PAIRS_SEEN: u32 = 4;
 
 /// The raw samples spread at least this many times more than block means say (per
 /// sample) when the IMU vibrates: white noise gives 1, an engine's 0.2 m/s^2 at 25 Hz
@@ -317,13 +316,15 @@ impl GravityFilter {
     }
 
     /// Learn `r_smooth` from `d`, the difference between consecutive smoothed block
-    /// means already divided by the triangle's share of their white noise.
+    /// means already divided by the triangle's share of their white noise: the mean of
+    /// the pairs so far, a running one of the last twenty or so later.
     pub(super) fn learn_smooth_noise(&mut self, d: f64, n0: u32, n1: u32) {
         if !d.is_finite() || n0 == 0 || n1 == 0 {
             return;
         }
         let r = d * d / (1.0 / f64::from(n0) + 1.0 / f64::from(n1));
-        self.r_smooth = (0.95 * self.r_smooth + 0.05 * r).max(1e-8);
+        let w = (1.0 / f64::from(self.smooth_pairs.saturating_add(1))).max(0.05);
+        self.r_smooth = ((1.0 - w) * self.r_smooth + w * r).max(1e-8);
         self.smooth_pairs = self.smooth_pairs.saturating_add(1);
     }
 
@@ -334,9 +335,16 @@ impl GravityFilter {
         self.smooth_pairs >= SMOOTH_PAIRS_MIN && self.vibration_seen()
     }
 
-    /// What `vibrating` asks of the noise, however few pairs have taught it.
+    /// What `vibrating` asks of the noise, from `SMOOTH_PAIRS_SEEN` pairs on, with the
+    /// per-sample spread counted in as one more pair, as if the noise were white: then
+    /// a white noise cannot pass before the fourth pair, and passes at the fourth with a
+    /// chance under 1 % (four pairs' sum below a quarter of one), where a nominal start
+    /// took a white 1000 ug/sqrt(Hz) for a vibration. A vibration that makes the spread
+    /// four times the noise below it passes from the fourth.
     fn vibration_seen(&self) -> bool {
-        self.smooth_pairs > 0 && self.r > VIBRATION_RATIO_MIN * self.r_smooth
+        let k = f64::from(self.smooth_pairs);
+        self.smooth_pairs >= SMOOTH_PAIRS_SEEN
+            && self.r > VIBRATION_RATIO_MIN * (self.r + k * self.r_smooth) / (k + 1.0)
     }
 
     /// Variance per sample a mean of n samples is known to within, over n, (m/s^2)^2:
@@ -521,6 +529,48 @@ mod tests {
         // Measured: 1.0 mm/s^2 off; with the first block taken at the nominal noise,
         // 5.1.
         assert!((learnt - g).abs() < 0.004, "learnt {learnt:.5} for {g}");
+    }
+
+    #[test]
+    fn a_white_noise_is_not_taken_for_a_vibration_and_an_engine_is_from_the_fourth_pair() {
+        // Pairs of quarter-second means (25 samples each) whose difference spreads as a
+        // white noise of per-sample variance `r_pairs` would, against a per-sample
+        // spread `r`; each start as a fresh filter.
+        let run = |r: f64, r_pairs: f64, seed: u64| {
+            let mut f = GravityFilter::new(9.81, 1e-3, [0.0; 2], 0.1);
+            f.r = r;
+            let mut rng = Normal(seed);
+            (1..=40)
+                .map(|k| {
+                    let d = rng.draw() * (r_pairs * 2.0 / 25.0).sqrt();
+                    f.learn_smooth_noise(d, 25, 25);
+                    (k, f.vibration_seen(), f.vibrating())
+                })
+                .collect::<Vec<_>>()
+        };
+        // White noise of 1000 ug/sqrt(Hz) (0.0096 (m/s^2)^2 per sample), 500 starts:
+        // never before the fourth pair, and rarely at all.
+        let (mut seen, mut vibrating) = (0, 0);
+        for seed in 1..=500u64 {
+            let pairs = run(0.0096, 0.0096, seed * 0x9E37_79B9);
+            assert!(pairs.iter().all(|&(k, s, _)| k >= 4 || !s));
+            seen += usize::from(pairs.iter().any(|&(_, s, _)| s));
+            vibrating += usize::from(pairs.iter().any(|&(_, _, v)| v));
+        }
+        // Chi-square: about 0.7 % at each of the first few pairs, 2-3 % in all.
+        assert!(seen <= 25, "{seen} of 500 white starts seen as a vibration");
+        assert!(
+            vibrating <= 5,
+            "{vibrating} of 500 white starts taken for a vibration"
+        );
+        // An engine at 0.2 m/s^2 rms next to 30 ug/sqrt(Hz): seen from the fourth pair,
+        // a vibration from the twelfth.
+        let pairs = run(0.04, 9e-6, 7);
+        assert!(
+            pairs
+                .iter()
+                .all(|&(k, s, v)| s == (k >= 4) && v == (k >= 12))
+        );
     }
 
     #[test]

@@ -148,6 +148,12 @@ impl Estimator {
         self.cfg.drive_off_speed_mps * self.acc_scale(self.walk_acc_noise_per_rthz())
     }
 
+    /// `rest_acc_tol_mps2` for the smoothed force of a vibrating IMU (`vibration`),
+    /// widened only by the noise a walk integrates, m/s^2.
+    pub(super) fn smoothed_rest_acc_tol_mps2(&self) -> f64 {
+        self.cfg.rest_acc_tol_mps2 * self.acc_scale(self.walk_acc_noise_per_rthz())
+    }
+
     /// `rest_acc_tol_mps2` widened for a noisy accelerometer, m/s^2.
     pub(super) fn rest_acc_tol_mps2(&self) -> f64 {
         self.cfg.rest_acc_tol_mps2 * self.acc_gate_scale()
