@@ -210,6 +210,12 @@ const SMOOTH_PAIRS_SEEN: u32 = 4;
 /// next to a 30 ug/sqrt(Hz) accelerometer several hundred.
 const VIBRATION_RATIO_MIN: f64 = 4.0;
 
+/// The per-sample variance of white noise that spreads the means of `n0` and `n1`
+/// samples by their difference `d`, (m/s^2)^2.
+fn pair_variance(d: f64, n0: u32, n1: u32) -> f64 {
+    d * d / (1.0 / f64::from(n0) + 1.0 / f64::from(n1))
+}
+
 /// A gap between settled samples longer than this closes the gravity block, s.
 const GRAVITY_BLOCK_GAP_S: f64 = 0.1;
 
@@ -310,7 +316,7 @@ impl GravityFilter {
         if !d.is_finite() || n0 == 0 || n1 == 0 {
             return;
         }
-        let r = d * d / (1.0 / f64::from(n0) + 1.0 / f64::from(n1));
+        let r = pair_variance(d, n0, n1);
         self.r_block = (0.95 * self.r_block + 0.05 * r).max(1e-8);
         self.block_pairs = self.block_pairs.saturating_add(1);
     }
@@ -322,7 +328,7 @@ impl GravityFilter {
         if !d.is_finite() || n0 == 0 || n1 == 0 {
             return;
         }
-        let r = d * d / (1.0 / f64::from(n0) + 1.0 / f64::from(n1));
+        let r = pair_variance(d, n0, n1);
         let w = (1.0 / f64::from(self.smooth_pairs.saturating_add(1))).max(0.05);
         self.r_smooth = ((1.0 - w) * self.r_smooth + w * r).max(1e-8);
         self.smooth_pairs = self.smooth_pairs.saturating_add(1);
