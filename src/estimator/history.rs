@@ -437,9 +437,10 @@ impl Estimator {
             let x = self.hist.get(i);
             // The IMU rides the rocking body at the lever arm: remove that acceleration.
             let lever_acc = self.lever_acc_at(i);
-            let ax = match self.smoothed_acc_at(i) {
-                Some(a) if vibrating => a.x,
-                _ => x.acc_mps2[0],
+            let ax = if vibrating {
+                self.smoothed_acc_at(i).map_or(x.acc_mps2[0], |a| a.x)
+            } else {
+                x.acc_mps2[0]
             };
             let r = ax - (q.inverse() * up).x - lever_acc.x;
             res[k % avg] = r;
