@@ -99,6 +99,9 @@ sens() {
         sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
         sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
         realistic.idle_vibration_mps2=0.2 sensors.imu_drop_prob=0
+    sens "stop-and-go, a noise-free IMU (biases kept, no drift)" stop-and-go \
+        sensors.acc_noise_ug_rthz=0 sensors.acc_bias_walk_mps2_rts=0 \
+        sensors.gyro_noise_dps_rthz=0 sensors.gyro_bias_walk_dps_rts=0
 } > "$tmp/sens"
 run bench accuracy --ablation --scenarios scenarios/realistic/*.toml --seeds 4 > "$tmp/ablreal"
 
