@@ -2182,7 +2182,8 @@ fn a_noise_free_imu_gives_brisk_drive_offs_after_short_stops_good_windows() {
                 Input::Wheels(w) => est.push_wheels(w, &mut |e| ev.push(e)),
             }
         }
-        // The first stop learns the gyro's bias from the rocking body; not this test's.
+        // From the second stop on, whose gravity the filter holds from stops before; the
+        // first one after the start (5P: +2.5 deg, another cause) is not this test's.
         for &(t_stop, t_go, kind, accel) in &plan.stops[2..] {
             if kind != StopKind::Full || t_go - t_stop > 2.0 || accel < 0.7 {
                 continue;
@@ -2201,8 +2202,8 @@ fn a_noise_free_imu_gives_brisk_drive_offs_after_short_stops_good_windows() {
     }
     eprintln!("{} windows: {errs:+.3?}", errs.len());
     // Measured: 5 windows at 0.08 deg rms; 4 at 1.16 with the filter's direction term
-    // bent (updates not bounded).
-    // Noise-free brisk windows of settled stops are 0.06 deg rms over the family.
+    // bent (updates not bounded). Noise-free brisk windows of settled stops are 0.06
+    // deg rms over the family.
     assert!(errs.len() >= 4, "{} windows", errs.len());
     assert!(rms(&errs) < 0.25, "rms {:.3}", rms(&errs));
 }
