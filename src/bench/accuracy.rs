@@ -95,6 +95,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         rest_swing_gate_mps2: 1e3,
         ..d()
     };
+    let no_reference_swing_gate = EstimatorConfig {
+        reference_swing_gate_dps2: 1e6,
+        ..d()
+    };
     let every_block_bias = EstimatorConfig {
         still_blocks_teach_bias: false,
         ..d()
@@ -145,6 +149,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         short_stop_windows: false,
         derotated_motion_anchor: false,
         rest_swing_gate_mps2: 1e3,
+        reference_swing_gate_dps2: 1e6,
         scale_gyro_gates: false,
         scale_acc_gates: false,
         velocity_free_slope: false,
@@ -176,6 +181,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(short_full_weight, "short-stops-full-weight")),
         Box::new(Leveld::new(raw_anchor, "raw-motion-anchor")),
         Box::new(Leveld::new(no_swing_gate, "no-rest-swing-gate")),
+        Box::new(Leveld::new(
+            no_reference_swing_gate,
+            "no-reference-swing-gate",
+        )),
         Box::new(Leveld::new(every_block_bias, "every-block-teaches-bias")),
         Box::new(Leveld::new(fixed_gyro_gates, "fixed-gyro-gates")),
         Box::new(Leveld::new(endpoint_slope, "endpoint-slope")),

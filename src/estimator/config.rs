@@ -225,6 +225,19 @@ pub struct EstimatorConfig {
     /// quarter of its recent samples are below it (a gyro noisier than the gate is
     /// sized for must not leave a stop without reference).
     pub rest_swing_gate_mps2: f64,
+    /// A stop's reference does not begin with a block of settled samples during which
+    /// the body's angular acceleration, as the gyro shows it, went above this, deg/s^2
+    /// (within `REFERENCE_SWING_SPAN_S` of the stop; widened like the rate gates for a
+    /// noisier gyro). A lightly damped body (0.9-1.0 Hz, damping 0.12-0.18) still
+    /// swings a tenth of a degree 2 s after a stop; at each turning point its rate
+    /// crosses zero and the samples there pass the rate gates, while the body stands
+    /// that far from its rest pitch with (2 pi f)^2 A of angular acceleration (3.6
+    /// deg/s^2 for 0.1 deg at 0.95 Hz). A reference begun there made the body's return
+    /// to rest look like a load change, which the gyro confirmed: 10 false load changes
+    /// of 0.13-0.48 deg on the family's 64 drives with such a body. Blocks of a body at
+    /// rest reach 1.2 deg/s^2 (median) and 2.1 (99th percentile) at 0.01
+    /// deg/s/sqrt(Hz), from the gyro's noise through the lever-arm smoothing.
+    pub reference_swing_gate_dps2: f64,
     /// Take out of each window the pitch the body has at rest on its grade
     /// (`estimator/grade.rs`): the brakes hold gravity's share along the road and the
     /// body dives or squats under it as under braking. Its pitch per m/s^2 is learnt
@@ -293,6 +306,7 @@ impl Default for EstimatorConfig {
             derotated_motion_anchor: true,
             still_blocks_teach_bias: true,
             rest_swing_gate_mps2: 0.05,
+            reference_swing_gate_dps2: 2.5,
             correct_grade_pitch: true,
             averaging: Averaging::Huber,
             average_capacity: 64,
@@ -394,6 +408,7 @@ impl EstimatorConfig {
         pos("still_gyro_dps", self.still_gyro_dps)?;
         pos("still_gyro_std_dps", self.still_gyro_std_dps)?;
         pos("rest_swing_gate_mps2", self.rest_swing_gate_mps2)?;
+        pos("reference_swing_gate_dps2", self.reference_swing_gate_dps2)?;
         pos("bias_gate_dps", self.bias_gate_dps)?;
         pos("gyro_noise_dps_rthz", self.gyro_noise_dps_rthz)?;
         pos("acc_noise_ug_rthz", self.acc_noise_ug_rthz)?;

@@ -15,6 +15,11 @@ const REST_CHECK_SPAN_S: f64 = 6.0;
 /// came to rest: the body's swing back from its dive decays over about a second (1.3
 /// Hz at damping 0.2-0.4), and what is left of it has one sign over a block.
 const BIAS_SETTLE_S: f64 = 1.0;
+/// A block that began this long after the car came to rest may begin the reference
+/// whatever the angular acceleration it holds (`reference_swing_gate_dps2`), s: a
+/// swing of damping 0.1 at 0.8 Hz has fallen to a seventh by then, and a gyro noisier
+/// than the gate allows must not leave the stop without a reference.
+const REFERENCE_SWING_SPAN_S: f64 = 4.0;
 /// The speed the IMU says the car had at the last wheel reading with a speed may differ
 /// from that reading by this much, m/s (wheel quantisation and update interval, a
 /// body that still rocks).
@@ -159,6 +164,8 @@ pub(super) struct Standstill {
     /// `rest_swing_gate_mps2`: the block's mean when enough of them passed.
     pub(super) block_calm_sum: Vector3<f64>,
     pub(super) block_calm_n: u64,
+    /// Largest angular acceleration of the body over the block's samples, rad/s^2.
+    pub(super) block_alpha_max: f64,
     pub(super) block_t0_s: f64,
     /// Time of the newest sample in the block, s.
     pub(super) block_last_s: f64,
@@ -288,6 +295,7 @@ impl Standstill {
         self.block_gyro_sum = Vector3::zeros();
         self.block_n = 0;
         self.block_calm_n = 0;
+        self.block_alpha_max = 0.0;
     }
     pub(super) fn mean(&self) -> Vector3<f64> {
         self.seg_sum / self.seg_n.max(1) as f64
@@ -552,6 +560,7 @@ impl Estimator {
             block_n: 0,
             block_calm_sum: Vector3::zeros(),
             block_calm_n: 0,
+            block_alpha_max: 0.0,
             block_t0_s: t_now,
             block_last_s: t_now,
             pending: None,
@@ -645,6 +654,11 @@ impl Estimator {
         if st.block_n == 0 {
             st.block_t0_s = s.t_s;
         }
+        let alpha = self.rocking_at(i).map_or(0.0, |(a, _)| a.norm());
+        let Some(st) = self.standstill.as_mut() else {
+            return;
+        };
+        st.block_alpha_max = st.block_alpha_max.max(alpha);
         if let Some(f) = f {
             st.block_gyro_sum += s.gyro_rps();
             st.block_sum += f;
@@ -679,6 +693,7 @@ impl Estimator {
     pub(super) fn close_block(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
         let thr = self.cfg.load_change_deg.to_radians();
         let min_n = self.min_settled();
+        let swing_gate = self.cfg.reference_swing_gate_dps2.to_radians() * self.gyro_gate_scale();
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
@@ -688,12 +703,18 @@ impl Estimator {
         let (block, block_n) = st.block_force(min_n);
         let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
         let gyro = st.block_gyro();
+        let swinging = st.block_alpha_max > swing_gate;
         let (gyro_mean, gyro_n) = (gyro.sum / gyro.n as f64, gyro.n);
         // Too soon after the stop to teach the bias: the body still swings back.
         let early = block_t0 - st.t_rest_s < BIAS_SETTLE_S;
         st.clear_block();
         st.block_t0_s = t_s;
         if st.seg_n == 0 {
+            // A body still swinging stands off its rest pitch (see
+            // `reference_swing_gate_dps2`); its next turning point is nearer rest.
+            if swinging && block_t0 - st.t_rest_s < REFERENCE_SWING_SPAN_S {
+                return;
+            }
             st.restart_segment(block, block_n, block_t0, block_last, gyro);
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
