@@ -66,6 +66,8 @@ sens() {
     sens "urban, stiff suspension (pitch 1.6-1.9 Hz, damping 0.3-0.5, 0.08-0.15 deg per m/s^2)" \
         urban "realistic.pitch_freq_hz=[1.6, 1.9]" "realistic.pitch_damping=[0.3, 0.5]" \
         "realistic.pitch_per_accel_deg=[0.08, 0.15]"
+    sens "bumpy, worn dampers (pitch 0.9-1.0 Hz, damping 0.12-0.18)" bumpy \
+        "realistic.pitch_freq_hz=[0.9, 1.0]" "realistic.pitch_damping=[0.12, 0.18]"
     sens "urban, body rising 2 mm per m/s^2 of force as it pitches" urban \
         "realistic.heave_per_accel_mm=[2.0, 2.0]"
     sens "urban, body sinking 2 mm per m/s^2 of force as it pitches" urban \
