@@ -677,11 +677,19 @@ impl Estimator {
     /// tail of 0.1 deg/s as 1 mm/s^2 in the standstill mean: 0.05 deg of slope over a
     /// gentle 2 s window.
     pub(super) fn lever_acc_at(&self, i: usize) -> Vector3<f64> {
-        let lever = self.lever_arm();
-        if lever == Vector3::zeros() {
+        if self.lever_arm() == Vector3::zeros() {
             return Vector3::zeros();
         }
-        match self.rocking_at(i) {
+        self.lever_acc_from(self.rocking_at(i))
+    }
+
+    /// `lever_acc_at` from the sample's `rocking_at`, m/s^2.
+    pub(super) fn lever_acc_from(
+        &self,
+        rocking: Option<(Vector3<f64>, Vector3<f64>)>,
+    ) -> Vector3<f64> {
+        let lever = self.lever_arm();
+        match rocking {
             Some((alpha, w)) => alpha.cross(&lever) + w.cross(&w.cross(&lever)),
             None => Vector3::zeros(),
         }

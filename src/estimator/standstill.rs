@@ -620,7 +620,8 @@ impl Estimator {
         // The gravity reference is the specific force of the pitch centre: what the IMU
         // would read without the rocking tail.
         let i = self.index_at(s.t_s);
-        let swing = self.lever_acc_at(i);
+        let rocking = self.rocking_at(i);
+        let swing = self.lever_acc_from(rocking);
         let f = s.acc() - swing;
         let smoothed = self.smoothed_acc_at(i).map(|a| a - swing);
         let calm = swing.norm() <= self.cfg.rest_swing_gate_mps2;
@@ -654,11 +655,9 @@ impl Estimator {
         if st.block_n == 0 {
             st.block_t0_s = s.t_s;
         }
-        let alpha = self.rocking_at(i).map_or(0.0, |(a, _)| a.norm());
-        let Some(st) = self.standstill.as_mut() else {
-            return;
-        };
-        st.block_alpha_max = st.block_alpha_max.max(alpha);
+        st.block_alpha_max = st
+            .block_alpha_max
+            .max(rocking.map_or(0.0, |(a, _)| a.norm()));
         if let Some(f) = f {
             st.block_gyro_sum += s.gyro_rps();
             st.block_sum += f;
