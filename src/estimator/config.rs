@@ -227,8 +227,8 @@ pub struct EstimatorConfig {
     pub rest_swing_gate_mps2: f64,
     /// A stop's reference does not begin with a block of settled samples during which
     /// the body's angular acceleration, as the gyro shows it, went above this, deg/s^2
-    /// (within `REFERENCE_SWING_SPAN_S` of the stop; widened like the rate gates for a
-    /// noisier gyro). A lightly damped body (0.9-1.0 Hz, damping 0.12-0.18) still
+    /// (in the first 4 s of the stop, after which any block may; widened like the rate
+    /// gates for a noisier gyro). A lightly damped body (0.9-1.0 Hz, damping 0.12-0.18) still
     /// swings a tenth of a degree 2 s after a stop; at each turning point its rate
     /// crosses zero and the samples there pass the rate gates, while the body stands
     /// that far from its rest pitch with (2 pi f)^2 A of angular acceleration (3.6
