@@ -228,14 +228,14 @@ pub struct EstimatorConfig {
     /// A stop's reference does not begin with a block of settled samples during which
     /// the body's angular acceleration, as the gyro shows it, went above this, deg/s^2
     /// (in the first 4 s of the stop, after which any block may; widened like the rate
-    /// gates for a noisier gyro). A lightly damped body (0.9-1.0 Hz, damping 0.12-0.18) still
-    /// swings a tenth of a degree 2 s after a stop; at each turning point its rate
-    /// crosses zero and the samples there pass the rate gates, while the body stands
-    /// that far from its rest pitch with (2 pi f)^2 A of angular acceleration (3.6
-    /// deg/s^2 for 0.1 deg at 0.95 Hz). A reference begun there made the body's return
-    /// to rest look like a load change, which the gyro confirmed: 10 false load changes
-    /// of 0.13-0.48 deg on the family's 64 drives with such a body. Blocks of a body at
-    /// rest reach 1.2 deg/s^2 (median) and 2.1 (99th percentile) at 0.01
+    /// gates for a noisier gyro). A lightly damped body (0.9-1.0 Hz, damping 0.12-0.18)
+    /// still swings a tenth of a degree 2 s after a stop; at each turning point its
+    /// rate crosses zero and the samples there pass the rate gates, while the body
+    /// stands that far from its rest pitch with (2 pi f)^2 A of angular acceleration
+    /// (3.6 deg/s^2 for 0.1 deg at 0.95 Hz). A reference begun there made the body's
+    /// return to rest look like a load change, which the gyro confirmed: 10 false load
+    /// changes of 0.13-0.48 deg on the family's 64 drives with such a body. Blocks of a
+    /// body at rest reach 1.2 deg/s^2 (median) and 2.1 (99th percentile) at 0.01
     /// deg/s/sqrt(Hz), from the gyro's noise through the lever-arm smoothing.
     pub reference_swing_gate_dps2: f64,
     /// Take out of each window the pitch the body has at rest on its grade
