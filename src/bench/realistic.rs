@@ -57,6 +57,9 @@ pub struct RealisticSpec {
     /// The body also pitches with gravity's share along a grade (see
     /// `Vehicle::pitch_from_grade`).
     pub pitch_from_grade: bool,
+    /// A load change moves the body through its pitch mode (see
+    /// `Vehicle::load_through_suspension`).
+    pub load_through_suspension: bool,
     pub lever_arm_m: [f64; 3],
     pub imu_mount_max_deg: [f64; 3],
     pub accel_ramp_s: f64,
@@ -110,6 +113,7 @@ impl Default for RealisticSpec {
             pitch_damping: [0.2, 0.4],
             pitch_per_accel_deg: [0.15, 0.3],
             pitch_from_grade: true,
+            load_through_suspension: false,
             lever_arm_m: [2.1, 0.65, 0.4],
             imu_mount_max_deg: [0.8, 1.0, 1.5],
             accel_ramp_s: 0.5,
@@ -373,6 +377,7 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         lever_arm_m: r.lever_arm_m,
         pitch_per_accel_deg: pick(&mut g, r.pitch_per_accel_deg),
         pitch_from_grade: r.pitch_from_grade,
+        load_through_suspension: r.load_through_suspension,
         pitch_freq_hz: pick(&mut g, r.pitch_freq_hz),
         pitch_damping: pick(&mut g, r.pitch_damping),
         heave_freq_hz: pick(&mut gr, r.heave_freq_hz),

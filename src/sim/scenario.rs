@@ -194,6 +194,10 @@ pub struct Vehicle {
     /// a grade holds gravity's share along the road: a car at rest facing uphill squats
     /// as if pulling away at g sin(grade). Off, only the acceleration pitches it.
     pub pitch_from_grade: bool,
+    /// A load change moves the body through its pitch mode, as any force on its springs
+    /// does: a load put in quickly makes it overshoot and rock before it settles. Off,
+    /// the body follows the load's pitch exactly.
+    pub load_through_suspension: bool,
     /// Natural frequency of the body pitch mode, Hz.
     pub pitch_freq_hz: f64,
     /// Damping ratio of the body pitch mode.
@@ -237,6 +241,7 @@ impl Default for Vehicle {
             lever_arm_m: [2.0, 0.0, 0.3],
             pitch_per_accel_deg: 0.3,
             pitch_from_grade: true,
+            load_through_suspension: false,
             pitch_freq_hz: 1.5,
             pitch_damping: 0.4,
             heave_freq_hz: 1.2,
