@@ -68,6 +68,10 @@ sens() {
         "realistic.pitch_per_accel_deg=[0.08, 0.15]"
     sens "bumpy, worn dampers (pitch 0.9-1.0 Hz, damping 0.12-0.18)" bumpy \
         "realistic.pitch_freq_hz=[0.9, 1.0]" "realistic.pitch_damping=[0.12, 0.18]"
+    sens "urban, loads put in over 0.3 s through the suspension" urban \
+        realistic.load_ramp_s=0.3 realistic.load_through_suspension=true
+    sens "hilly, loads put in over 0.3 s through the suspension" hilly \
+        realistic.load_ramp_s=0.3 realistic.load_through_suspension=true
     sens "urban, body rising 2 mm per m/s^2 of force as it pitches" urban \
         "realistic.heave_per_accel_mm=[2.0, 2.0]"
     sens "urban, body sinking 2 mm per m/s^2 of force as it pitches" urban \
