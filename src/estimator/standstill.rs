@@ -156,6 +156,8 @@ pub(super) struct Standstill {
     pub(super) seg_n: u64,
     pub(super) seg_first_s: f64,
     pub(super) seg_last_s: f64,
+    /// Gyro readings of the segment's blocks (all their quiet samples).
+    pub(super) seg_gyro: GyroSum,
     pub(super) block_sum: Vector3<f64>,
     pub(super) block_n: u64,
     /// Sum and count of the block's samples whose lever-arm motion stayed below
@@ -300,9 +302,17 @@ impl Standstill {
     }
     /// Make the settled stretch of `n` samples summing to `sum`, from `first_s` to
     /// `last_s`, the stop's reference in place of the current one.
-    fn restart_segment(&mut self, sum: Vector3<f64>, n: u64, first_s: f64, last_s: f64) {
+    fn restart_segment(
+        &mut self,
+        sum: Vector3<f64>,
+        n: u64,
+        first_s: f64,
+        last_s: f64,
+        gyro: GyroSum,
+    ) {
         self.seg_sum = sum;
         self.seg_n = n;
+        self.seg_gyro = gyro;
         self.seg_first_s = first_s;
         self.seg_last_s = last_s;
     }
@@ -543,6 +553,7 @@ impl Estimator {
             t_braked_s: self.hist.get(braked).t_s,
             seg_sum: Vector3::zeros(),
             seg_n: 0,
+            seg_gyro: GyroSum::default(),
             seg_first_s: t_now,
             seg_last_s: t_now,
             block_sum: Vector3::zeros(),
@@ -703,7 +714,7 @@ impl Estimator {
             if swinging && block_t0 - st.t_rest_s < REFERENCE_SWING_SPAN_S {
                 return;
             }
-            st.restart_segment(block, block_n, block_t0, block_last);
+            st.restart_segment(block, block_n, block_t0, block_last, gyro);
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
@@ -714,6 +725,7 @@ impl Estimator {
         if (bp - sp).abs() <= thr {
             st.seg_sum += block;
             st.seg_n += block_n;
+            st.seg_gyro.add(gyro);
             st.seg_last_s = block_last;
             st.pending = None;
             let joined = *st;
@@ -742,7 +754,7 @@ impl Estimator {
                 };
                 if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta)) {
                     // The newer stretch is the better reference; the load stays.
-                    st.restart_segment(psum + block, pn + block_n, pt0, block_last);
+                    st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
                     return;
                 }
                 if !st.settled_done {
@@ -753,7 +765,7 @@ impl Estimator {
                     return;
                 };
                 let thin_ref = st.seg_last_s - st.seg_first_s < THIN_REF_S;
-                st.restart_segment(psum + block, pn + block_n, pt0, block_last);
+                st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
                 let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
                 // A reference that spans less than one period of the body's pitch mode
                 // holds the rocking two ways: the force carries the lever arm's
@@ -785,7 +797,7 @@ impl Estimator {
                         let Some(st) = self.standstill.as_mut() else {
                             return;
                         };
-                        st.restart_segment(block, block_n, block_t0, block_last);
+                        st.restart_segment(block, block_n, block_t0, block_last, gyro);
                         st.pending = None;
                         return;
                     }
@@ -1064,18 +1076,9 @@ impl Estimator {
     /// the start of the standstill to the settled samples, and the specific force
     /// moved with it. Returns the turn, rad, when both agree on at least twice the
     /// load-change threshold (twice: the body may still rock a little at the start).
-    ///
-    /// The turn is carried with the learnt bias, not with the mean rate of the settled
-    /// samples: these come within a second or so of the body's last motion and span
-    /// about one period of its pitch mode, and a load put in quickly leaves the body
-    /// swinging on through them. A swing of a few hundredths of a degree over that span
-    /// is a mean rate of a few hundredths of a degree per second, more than the learnt
-    /// bias has walked since the last stop, and it is carried over the whole 2-4 s
-    /// from the standstill's start (urban 104, a 1.0 deg load put in over 0.3 s:
-    /// 0.130 deg short with the settled samples' rate, 0.049 with the learnt bias).
     fn turn_before_settling(&self, st: &Standstill, settled_pitch_rad: f64) -> Option<f64> {
         let mid = self.index_at(0.5 * (st.seg_first_s + st.seg_last_s));
-        self.turn_since_begin(st, mid, settled_pitch_rad, None)
+        self.turn_since_begin(st, mid, settled_pitch_rad, st.seg_gyro.mean())
     }
 
     /// A load that turned the body through a whole stop of at least
