@@ -584,8 +584,8 @@ mod tests {
                 .fold(f64::MIN, f64::max);
             (peak, at(7.5), d.truth_at(7.5).load_pitch_deg)
         };
-        // Through the suspension the body overshoots (a step on a mode damped 0.3 comes
-        // back 37 % past its end; a 0.3 s ramp excites less) and settles on the load.
+        // Through the suspension the body overshoots (a step on a mode damped 0.3
+        // overshoots by 37 %; a 0.3 s ramp excites less) and settles on the load.
         let (peak, settled, load) = body_pitch(true);
         assert!(peak > 1.1 && peak < 1.37, "peak {peak}");
         assert!((settled - 1.0).abs() < 0.005 && (load - 1.0).abs() < 1e-9);
