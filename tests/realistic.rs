@@ -177,6 +177,28 @@ fn gentle_stops_whose_end_the_wheel_dead_zone_hides_are_not_taken_for_rest_while
     assert_unbiased(&errs, 0.25);
 }
 
+#[test]
+fn gentle_drive_offs_toward_a_speed_bump_keep_the_straight_road_before_it() {
+    // A speed bump 3 m past every stop line: the front wheels reach it after about
+    // 1.5 m, so the 3 m window bends and falls back to its first half. Pulling away at
+    // 0.3-0.6 m/s^2, that half lasts 2-3 s, and the accelerometer's noise alone leaves
+    // it 2-6 mm from its chord. Held to a quarter of the full window's limit (3 mm)
+    // alone, about half of them were refused (13 of these 18 drive-offs gave a
+    // window); the limit no longer goes below what the noise leaves.
+    let (mut n, mut ok, mut errs) = (0, 0, Vec::new());
+    for seed in [41, 42] {
+        let mut s = spec(seed, 10, gentle());
+        s.bump_share = 1.0;
+        let c = checks(&s, 0);
+        n += c.gentle_drive_offs;
+        ok += c.gentle_accepted;
+        errs.extend(c.window_errors);
+    }
+    assert_most_gentle_drive_offs_gave_windows(n, ok);
+    // Gentle windows of 1.5 m are about 0.5 deg rms off on the realistic drives.
+    assert_unbiased(&errs, 0.5);
+}
+
 /// Of `n` gentle drive-offs, at least 16, `ok` gave a window: 90 % or more.
 fn assert_most_gentle_drive_offs_gave_windows(n: usize, ok: usize) {
     assert!(n >= 16, "{n} gentle drive-offs");

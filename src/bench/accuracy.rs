@@ -123,6 +123,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         short_window_share: 0.0,
         ..d()
     };
+    let no_noise_chord = EstimatorConfig {
+        chord_noise_sigmas: 0.0,
+        ..d()
+    };
     let no_grade = EstimatorConfig {
         correct_grade_pitch: false,
         ..d()
@@ -154,6 +158,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         scale_acc_gates: false,
         velocity_free_slope: false,
         short_window_share: 0.0,
+        chord_noise_sigmas: 0.0,
         correct_grade_pitch: false,
         ..d()
     };
@@ -190,6 +195,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(endpoint_slope, "endpoint-slope")),
         Box::new(Leveld::new(short_windows, "2-m-windows")),
         Box::new(Leveld::new(no_fallback, "no-half-windows")),
+        Box::new(Leveld::new(no_noise_chord, "no-chord-noise-floor")),
         Box::new(Leveld::new(no_grade, "no-grade-pitch")),
         Box::new(Leveld::new(no_axle, "no-axle-chord")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),

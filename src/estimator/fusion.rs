@@ -127,6 +127,16 @@ impl Estimator {
         );
     }
 
+    /// How far from its chord the accelerometer's noise alone takes a walk of 1 s, m:
+    /// white noise of density `sigma` integrated twice and tied to the chord between
+    /// its ends sits `sigma T^1.5 / sqrt(48)` from it at mid-walk (one standard
+    /// deviation), `chord_noise_sigmas` of those. 0 before the noise is learnt.
+    pub(super) fn noise_chord_m(&self) -> f64 {
+        self.walk_acc_noise_per_rthz().map_or(0.0, |sigma| {
+            self.cfg.chord_noise_sigmas * sigma / 48f64.sqrt()
+        })
+    }
+
     pub(super) fn window_setup(&self, q0: UnitQuaternion<f64>, g: f64) -> WindowSetup {
         let c = &self.cfg;
         WindowSetup {
@@ -142,6 +152,7 @@ impl Estimator {
             max_yaw_rate_rps: c.max_yaw_rate_dps.to_radians(),
             max_lateral_acc_mps2: c.max_lateral_acc_mps2,
             max_chord_deviation_m: c.max_chord_deviation_m,
+            noise_chord_m: self.noise_chord_m(),
             velocity_free: c.velocity_free_slope && !self.quiet_accelerometer(),
             velocity_free_max_chord_m: c.velocity_free_max_chord_m,
             short_share: c.short_window_share,

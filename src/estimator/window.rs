@@ -58,6 +58,10 @@ pub struct WindowSetup {
     pub max_yaw_rate_rps: f64,
     pub max_lateral_acc_mps2: f64,
     pub max_chord_deviation_m: f64,
+    /// The chord deviation the accelerometer's noise alone leaves on a walk of 1 s, m;
+    /// it grows as the walk's duration^1.5, and the limit on a path's deviation never
+    /// goes below it (`Estimator::noise_chord_m`). 0 leaves the limit as set.
+    pub noise_chord_m: f64,
     /// Slope from the velocity-free fit instead of the end point, on a path that
     /// leaves its chord by at most `velocity_free_max_chord_m`.
     pub velocity_free: bool,
@@ -193,6 +197,7 @@ impl WindowIntegrator {
                 max_yaw_rate_rps: 0.05,
                 max_lateral_acc_mps2: 0.5,
                 max_chord_deviation_m: 0.01,
+                noise_chord_m: 0.0,
                 velocity_free: true,
                 velocity_free_max_chord_m: 0.006,
                 short_share: 0.0,
@@ -464,7 +469,10 @@ impl WindowIntegrator {
             .iter()
             .map(|&(x, z)| (z * xl - x * zl).abs() / norm)
             .fold(0.0, f64::max);
-        if dev > s.max_chord_deviation_m * w.limit_share {
+        // A bend limit below what the noise alone leaves would refuse straight roads
+        // at random, the more the slower the walk.
+        let noise_m = s.noise_chord_m * w.duration_s.powf(1.5);
+        if dev > (s.max_chord_deviation_m * w.limit_share).max(noise_m) {
             return Err(RejectReason::SlopeNotConstant {
                 chord_deviation_m: dev,
             });
@@ -539,6 +547,7 @@ mod tests {
             max_yaw_rate_rps: 0.05,
             max_lateral_acc_mps2: 0.5,
             max_chord_deviation_m: 0.01,
+            noise_chord_m: 0.0,
             velocity_free: true,
             velocity_free_max_chord_m: 0.006,
             short_share: 0.0,
