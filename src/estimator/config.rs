@@ -88,14 +88,14 @@ pub struct EstimatorConfig {
     pub chord_check_extra_m: f64,
     /// A window whose corrected trajectory leaves its end-to-end chord by more than this is rejected, m.
     pub max_chord_deviation_m: f64,
-    /// The limit on a path's deviation from its chord never goes below this many
-    /// standard deviations of what the accelerometer's noise (learnt at rest) alone
-    /// leaves on a walk of that duration; 0 keeps the configured limits alone. A bend
-    /// limit below the noise refuses straight roads at random, the slower the walk the
-    /// more: the half-window a speed bump ahead leaves (a quarter of
-    /// `max_chord_deviation_m`, 3 mm) lasts 2-3 s after a gentle drive-off, over which
-    /// 300 ug/sqrt(Hz) alone reaches 2-6 mm. Gentle drive-offs with a window on the
-    /// realistic family's bumpy drives 61 -> 80 of 92; the drive suite unchanged.
+    /// The short fallback's limit on its deviation from its chord (below) does not go
+    /// below this many standard deviations of what the accelerometer's noise (learnt
+    /// at rest) alone leaves on a walk of its duration, up to `max_chord_deviation_m`
+    /// times `short_window_share` (a bend that tilts its shorter chord as much as the
+    /// whole window's limit tilts its own); 0 keeps the bend limit alone. That limit,
+    /// 3 mm, is below the noise of a slow walk and refused straight roads at random:
+    /// the half-window a speed bump ahead leaves lasts 2-3 s after a gentle drive-off,
+    /// over which 300 ug/sqrt(Hz) alone reaches 2-6 mm.
     pub chord_noise_sigmas: f64,
     /// Take the window's slope from weights t (T - t) on its acceleration, which vanish
     /// at both ends, instead of the chord to its end point (eq. 14). The chord carries

@@ -59,8 +59,9 @@ pub struct WindowSetup {
     pub max_lateral_acc_mps2: f64,
     pub max_chord_deviation_m: f64,
     /// The chord deviation the accelerometer's noise alone leaves on a walk of 1 s, m;
-    /// it grows as the walk's duration^1.5, and the limit on a path's deviation never
-    /// goes below it (`Estimator::noise_chord_m`). 0 leaves the limit as set.
+    /// it grows as the walk's duration^1.5. The short fallback's limit does not go
+    /// below it, up to the limit of the whole window times the share
+    /// (`Estimator::noise_chord_m`). 0 leaves the limits as set.
     pub noise_chord_m: f64,
     /// Slope from the velocity-free fit instead of the end point, on a path that
     /// leaves its chord by at most `velocity_free_max_chord_m`.
@@ -470,8 +471,12 @@ impl WindowIntegrator {
             .map(|&(x, z)| (z * xl - x * zl).abs() / norm)
             .fold(0.0, f64::max);
         // A bend limit below what the noise alone leaves would refuse straight roads
-        // at random, the more the slower the walk.
-        let noise_m = s.noise_chord_m * w.duration_s.powf(1.5);
+        // at random, the more the slower the walk; but a shorter path may not bend
+        // further than tilts its chord as much as the whole window's limit tilts its
+        // own (the limit times the share of the length, the square root of
+        // `limit_share`).
+        let noise_m = (s.noise_chord_m * w.duration_s.powf(1.5))
+            .min(s.max_chord_deviation_m * w.limit_share.sqrt());
         if dev > (s.max_chord_deviation_m * w.limit_share).max(noise_m) {
             return Err(RejectReason::SlopeNotConstant {
                 chord_deviation_m: dev,
@@ -777,6 +782,80 @@ mod tests {
         // A rise inside the first half leaves no straight part.
         assert!(matches!(
             walk_into_a_rise(0.6, 0.5, 0.5),
+            Err(RejectReason::SlopeNotConstant { .. })
+        ));
+    }
+
+    /// Walk a 3 m window (checked 1 m further, with the half-window fallback) of a
+    /// drive-off at 0.4 m/s^2 over a road of slope `slope(s)` (rad, and its derivative
+    /// per m) that the body follows exactly, with the chord noise floor `noise_chord_m`.
+    fn walk_road(
+        slope: impl Fn(f64) -> (f64, f64),
+        noise_chord_m: f64,
+    ) -> Result<WindowGeometry, RejectReason> {
+        let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
+        let mut w = WindowIntegrator::with_capacity(4000);
+        let setup = WindowSetup {
+            distance_m: 3.0,
+            check_extra_m: 1.0,
+            max_chord_deviation_m: 0.012,
+            short_share: 0.5,
+            noise_chord_m,
+            ..setup(q0)
+        };
+        w.start(setup, Vector3::zeros());
+        let a = 0.4;
+        for k in 0..3000 {
+            let t = k as f64 * 0.01;
+            let (s, v) = (0.5 * a * t * t, a * t);
+            let (gam, dgam_ds) = slope(s);
+            let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
+            let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
+            let acc_n = tan * a + nrm * (v * v * dgam_ds) + Vector3::new(0.0, 0.0, G);
+            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -gam);
+            let rate_dps = [0.0, -(dgam_ds * v).to_degrees(), 0.0];
+            if let Step::Done(r) =
+                w.push(&ImuSample::new(t, (q.inverse() * acc_n).into(), rate_dps))
+            {
+                return r;
+            }
+        }
+        panic!("window must complete");
+    }
+
+    #[test]
+    fn a_half_window_is_refused_for_no_less_than_the_noise_bends_it_and_no_more_than_a_whole_one() {
+        // A hump of `h` over the first 1.5 m (what a noisy walk may show), a speed
+        // bump's 6 % rise from 1.6 m: the whole window bends, its first half is tried.
+        let road = |h: f64| {
+            move |s: f64| {
+                let k = std::f64::consts::PI / 1.5;
+                if s < 1.5 {
+                    // z = h sin^2(k s): slope h k sin(2 k s), its derivative 2 h k^2 cos(2 k s).
+                    let dz = h * k * (2.0 * k * s).sin();
+                    (dz.atan(), 2.0 * h * k * k * (2.0 * k * s).cos())
+                } else if s < 1.6 {
+                    (0.0, 0.0)
+                } else if s < 2.0 {
+                    (0.06f64.atan() * (s - 1.6) / 0.4, 0.06f64.atan() / 0.4)
+                } else {
+                    (0.06f64.atan(), 0.0)
+                }
+            }
+        };
+        // 1.5 m at 0.4 m/s^2 takes 2.74 s; 300 ug/sqrt(Hz) leaves 5.8 mm at 3 sigma.
+        let noise = 3.0 * 300e-6 * G / 48f64.sqrt();
+        // 4.5 mm: beyond the half window's bend limit (3 mm), within the noise.
+        assert!(matches!(
+            walk_road(road(0.0045), 0.0),
+            Err(RejectReason::SlopeNotConstant { .. })
+        ));
+        let g = walk_road(road(0.0045), noise).expect("a hump the noise could make");
+        assert!((g.distance_m - 1.5).abs() < 0.02, "{}", g.distance_m);
+        assert!(g.slope_rad.abs() < 1e-3, "{}", g.slope_rad.to_degrees());
+        // 7 mm tilts a 1.5 m chord further than 12 mm tilts 3 m: refused at any noise.
+        assert!(matches!(
+            walk_road(road(0.007), 1.0),
             Err(RejectReason::SlopeNotConstant { .. })
         ));
     }
