@@ -141,6 +141,15 @@ fn config_mistakes_name_the_file_and_field() {
         "{e}"
     );
     let e = err_of(load_variant(
+        "noise-floor",
+        &(reference_toml() + "chord_noise_sigmas = nan\n"),
+        None,
+    ));
+    assert!(
+        e.contains("chord_noise_sigmas") && e.contains("0 (the configured limits alone)"),
+        "{e}"
+    );
+    let e = err_of(load_variant(
         "gate",
         &(reference_toml() + "rest_swing_gate_mps2 = -0.05\n"),
         None,
