@@ -132,9 +132,11 @@ impl Estimator {
     /// its ends sits `sigma T^1.5 / sqrt(48)` from it at mid-walk (one standard
     /// deviation), `chord_noise_sigmas` of those. 0 before the noise is learnt.
     pub(super) fn noise_chord_m(&self) -> f64 {
-        self.walk_acc_noise_per_rthz().map_or(0.0, |sigma| {
-            self.cfg.chord_noise_sigmas * sigma / 48f64.sqrt()
-        })
+        self.walk_acc_noise_per_rthz()
+            .filter(|sigma| sigma.is_finite())
+            .map_or(0.0, |sigma| {
+                self.cfg.chord_noise_sigmas * sigma / 48f64.sqrt()
+            })
     }
 
     pub(super) fn window_setup(&self, q0: UnitQuaternion<f64>, g: f64) -> WindowSetup {
