@@ -471,9 +471,9 @@ impl WindowIntegrator {
             .map(|&(x, z)| (z * xl - x * zl).abs() / norm)
             .fold(0.0, f64::max);
         // A bend limit below what the noise alone leaves would refuse straight roads
-        // at random, the more the slower the walk; but a shorter path may not bend
-        // further than tilts its chord as much as the whole window's limit tilts its
-        // own (the limit times the share of the length, the square root of
+        // at random, the more the slower the walk; but a shorter path may bend no
+        // further than what tilts its chord as much as the whole window's limit tilts
+        // its own (that limit times the share of the length, the square root of
         // `limit_share`).
         let noise_m = (s.noise_chord_m * w.duration_s.powf(1.5))
             .min(s.max_chord_deviation_m * w.limit_share.sqrt());
@@ -737,23 +737,37 @@ mod tests {
         short_share: f64,
     ) -> Result<WindowGeometry, RejectReason> {
         let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
-        let mut w = WindowIntegrator::with_capacity(4000);
         let setup = WindowSetup {
             short_share,
             check_extra_m,
             ..setup(q0)
         };
-        w.start(setup, Vector3::zeros());
-        let (a, top) = (1.0, 0.06f64.atan());
-        for k in 0..2000 {
-            let t = k as f64 * 0.01;
-            let (s, v) = (0.5 * a * t * t, a * t);
+        let top = 0.06f64.atan();
+        walk_drive_off(setup, 1.0, |s| {
             let gam = top * ((s - s0) / 0.4).clamp(0.0, 1.0);
             let dgam_ds = if (s0..s0 + 0.4).contains(&s) {
                 top / 0.4
             } else {
                 0.0
             };
+            (gam, dgam_ds)
+        })
+    }
+
+    /// Walk a drive-off at `a` m/s^2 from rest with `setup` over a road of slope
+    /// `slope(s)` (rad, and its derivative per m) that the body follows exactly, on
+    /// exact 100 Hz samples, until the window is done.
+    fn walk_drive_off(
+        setup: WindowSetup,
+        a: f64,
+        slope: impl Fn(f64) -> (f64, f64),
+    ) -> Result<WindowGeometry, RejectReason> {
+        let mut w = WindowIntegrator::with_capacity(4000);
+        w.start(setup, Vector3::zeros());
+        for k in 0..4000 {
+            let t = k as f64 * 0.01;
+            let (s, v) = (0.5 * a * t * t, a * t);
+            let (gam, dgam_ds) = slope(s);
             // Tangential plus centripetal acceleration along the vertical curve.
             let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
             let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
@@ -787,14 +801,13 @@ mod tests {
     }
 
     /// Walk a 3 m window (checked 1 m further, with the half-window fallback) of a
-    /// drive-off at 0.4 m/s^2 over a road of slope `slope(s)` (rad, and its derivative
-    /// per m) that the body follows exactly, with the chord noise floor `noise_chord_m`.
+    /// drive-off at 0.4 m/s^2 over a road of slope `slope(s)`, with the chord noise
+    /// floor `noise_chord_m`.
     fn walk_road(
         slope: impl Fn(f64) -> (f64, f64),
         noise_chord_m: f64,
     ) -> Result<WindowGeometry, RejectReason> {
         let q0 = attitude_from_gravity(&specific_force(0.0, 0.0, 0.0)).unwrap();
-        let mut w = WindowIntegrator::with_capacity(4000);
         let setup = WindowSetup {
             distance_m: 3.0,
             check_extra_m: 1.0,
@@ -803,24 +816,7 @@ mod tests {
             noise_chord_m,
             ..setup(q0)
         };
-        w.start(setup, Vector3::zeros());
-        let a = 0.4;
-        for k in 0..3000 {
-            let t = k as f64 * 0.01;
-            let (s, v) = (0.5 * a * t * t, a * t);
-            let (gam, dgam_ds) = slope(s);
-            let tan = Vector3::new(gam.cos(), 0.0, gam.sin());
-            let nrm = Vector3::new(-gam.sin(), 0.0, gam.cos());
-            let acc_n = tan * a + nrm * (v * v * dgam_ds) + Vector3::new(0.0, 0.0, G);
-            let q = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -gam);
-            let rate_dps = [0.0, -(dgam_ds * v).to_degrees(), 0.0];
-            if let Step::Done(r) =
-                w.push(&ImuSample::new(t, (q.inverse() * acc_n).into(), rate_dps))
-            {
-                return r;
-            }
-        }
-        panic!("window must complete");
+        walk_drive_off(setup, 0.4, slope)
     }
 
     #[test]
