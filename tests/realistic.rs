@@ -461,6 +461,44 @@ fn a_lightly_damped_body_swinging_after_a_stop_is_no_load_change() {
     }
 }
 
+/// Worn dampers again, on drives whose reference at a stop was a block of 5-7 samples
+/// (0.05-0.06 s) at a turning point of the swing: the force's step to the rest after it
+/// passed the 0.2 deg threshold (0.23-0.27 deg: the swing, the lever arm's acceleration
+/// at the turning point, the noise of so few samples), the gyro turned 0.06-0.11 deg,
+/// and the step applied, their mean, was 0.14-0.18 deg: below the threshold it was
+/// detected by. Urban 103 and 107 with five aboard, hilly 208 with one: with a 1.0 deg
+/// load at the sixth stop of the 5P drives, any load change elsewhere is false.
+#[test]
+fn a_step_from_a_reference_caught_at_a_turning_point_of_the_swing_is_no_load_change() {
+    for (name, seed, load) in [("urban", 103, 1), ("urban", 107, 1), ("hilly", 208, 0)] {
+        let mut s = DriveSpec::parse(&shipped(name)).unwrap();
+        s.seed = seed;
+        let r = s.realistic.as_mut().expect("the scenario is realistic");
+        r.pitch_freq_hz = [0.9, 1.0];
+        r.pitch_damping = [0.12, 0.18];
+        let case = &s.cases()[load];
+        let plan = case.plan.as_ref().unwrap();
+        let load_stop = plan.load_change.map(|(k, _)| plan.stops[k]);
+        let ev = drive_events(&simulate(&case.scenario));
+        let elsewhere: Vec<(f64, f64)> = ev
+            .iter()
+            .filter_map(|e| match e {
+                Event::LoadChanged { t_s, delta_deg, .. } => Some((*t_s, *delta_deg)),
+                _ => None,
+            })
+            .filter(|(t, _)| !load_stop.is_some_and(|(t0, t1, ..)| *t >= t0 && *t <= t1 + 2.0))
+            .collect();
+        assert!(
+            elsewhere.is_empty(),
+            "{name} {seed}: load changes away from the load's stop {elsewhere:?}"
+        );
+        if load_stop.is_some() {
+            let found = ev.iter().any(|e| matches!(e, Event::LoadChanged { .. }));
+            assert!(found, "{name} {seed}: the load's own change was not found");
+        }
+    }
+}
+
 /// Drives whose every stop but the first is rolling (down to 0.05-0.3 m/s, then away)
 /// give no window and no load change around those stops.
 fn assert_rolling_stops_give_nothing(seeds: &[u64], load: usize, dead_zone_kmh: f64) {

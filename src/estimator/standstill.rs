@@ -743,17 +743,34 @@ impl Estimator {
                 // gyro sees the same turn; a reference taken from a few samples while the
                 // body still swung (its lever-arm motion left in the force) does not.
                 let new_mean = (psum + block) / (pn + block_n) as f64;
-                let sf_delta = pitch_from(&new_mean).unwrap_or(bp) - sp;
+                let new_pitch = pitch_from(&new_mean).unwrap_or(bp);
+                let sf_delta = new_pitch - sp;
                 let new_mid = 0.5 * (pt0 + block_last);
                 let reference = *st;
                 let mut after = p.gyro;
                 after.add(gyro);
                 let gyro_delta = self.turn_since_reference(&reference, new_mid, after.mean());
+                // A reference that spans less than one period of the body's pitch mode
+                // holds the rocking two ways: the force carries the lever arm's
+                // acceleration, the gyro's turn starts from wherever the swing was. The
+                // two errors are unrelated; their mean halves their variance.
+                let thin_ref = reference.seg_last_s - reference.seg_first_s < THIN_REF_S;
+                let delta = match gyro_delta {
+                    Some(g) if thin_ref => 0.5 * (g + sf_delta),
+                    _ => sf_delta,
+                };
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
-                if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta)) {
-                    // The newer stretch is the better reference; the load stays.
+                // The newer stretch is the better reference and the load stays when the
+                // gyro did not see the force's turn, or when the step, measured as it
+                // would be applied, is within the threshold: a reference of a few samples
+                // at the end of a swing (a worn damper's body still rocks 0.1 deg two
+                // seconds after the stop) put the force's step past the threshold while
+                // the gyro turned a third as far.
+                if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta))
+                    || delta.abs() <= thr
+                {
                     st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
                     return;
                 }
@@ -764,17 +781,7 @@ impl Estimator {
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
-                let thin_ref = st.seg_last_s - st.seg_first_s < THIN_REF_S;
                 st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
-                let new_pitch = pitch_from(&st.mean()).unwrap_or(bp);
-                // A reference that spans less than one period of the body's pitch mode
-                // holds the rocking two ways: the force carries the lever arm's
-                // acceleration, the gyro's turn starts from wherever the swing was. The
-                // two errors are unrelated; their mean halves their variance.
-                let delta = match gyro_delta {
-                    Some(g) if thin_ref => 0.5 * (g + new_pitch - sp),
-                    _ => new_pitch - sp,
-                };
                 self.apply_load_change(delta, new_pitch, t_s, emit);
             }
             _ => {
