@@ -468,9 +468,18 @@ fn a_lightly_damped_body_swinging_after_a_stop_is_no_load_change() {
 /// and the step applied, their mean, was 0.14-0.18 deg: below the threshold it was
 /// detected by. Urban 103 and 107 with five aboard, hilly 208 with one: with a 1.0 deg
 /// load at the sixth stop of the 5P drives, any load change elsewhere is false.
+/// Urban 102 with one aboard: a 1.6 s stop settled on five samples 0.9 s after it came
+/// to rest, their mean rate (the swing's) became the bias of the gyro's turn since the
+/// standstill began, and a -0.43 deg load change followed.
 #[test]
 fn a_step_from_a_reference_caught_at_a_turning_point_of_the_swing_is_no_load_change() {
-    for (name, seed, load) in [("urban", 103, 1), ("urban", 107, 1), ("hilly", 208, 0)] {
+    let drives = [
+        ("urban", 103, 1),
+        ("urban", 107, 1),
+        ("hilly", 208, 0),
+        ("urban", 102, 0),
+    ];
+    for (name, seed, load) in drives {
         let mut s = DriveSpec::parse(&shipped(name)).unwrap();
         s.seed = seed;
         let r = s.realistic.as_mut().expect("the scenario is realistic");
