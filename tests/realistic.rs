@@ -439,26 +439,38 @@ fn a_reference_caught_in_the_swing_after_a_stop_gives_way_to_the_rest_after_it()
 #[test]
 fn a_lightly_damped_body_swinging_after_a_stop_is_no_load_change() {
     for seed in [403, 407] {
-        let mut s = DriveSpec::parse(&shipped("bumpy")).unwrap();
-        s.seed = seed;
-        let r = s
-            .realistic
-            .as_mut()
-            .expect("the bumpy scenario is realistic");
-        r.pitch_freq_hz = [0.9, 1.0];
-        r.pitch_damping = [0.12, 0.18];
-        let case = &s.cases()[0];
-        assert!(case.plan.as_ref().unwrap().load_change.is_none());
-        let ev = drive_events(&simulate(&case.scenario));
-        let loads: Vec<(f64, f64)> = ev
-            .iter()
-            .filter_map(|e| match e {
-                Event::LoadChanged { t_s, delta_deg, .. } => Some((*t_s, *delta_deg)),
-                _ => None,
-            })
-            .collect();
+        let (load_stop, loads) = worn_damper_load_changes("bumpy", seed, 0);
+        assert!(load_stop.is_none());
         assert!(loads.is_empty(), "seed {seed}: load changes {loads:?}");
     }
+}
+
+/// The stop a drive's load changes at (stop time, drive-off time), if any, and every
+/// load change (time, step in deg) over the drive on a body whose dampers are worn:
+/// pitch mode 0.9-1.0 Hz, damping 0.12-0.18.
+fn worn_damper_load_changes(
+    name: &str,
+    seed: u64,
+    load: usize,
+) -> (Option<(f64, f64)>, Vec<(f64, f64)>) {
+    let mut s = DriveSpec::parse(&shipped(name)).unwrap();
+    s.seed = seed;
+    let r = s.realistic.as_mut().expect("the scenario is realistic");
+    r.pitch_freq_hz = [0.9, 1.0];
+    r.pitch_damping = [0.12, 0.18];
+    let case = &s.cases()[load];
+    let plan = case.plan.as_ref().unwrap();
+    let load_stop = plan
+        .load_change
+        .map(|(k, _)| (plan.stops[k].0, plan.stops[k].1));
+    let loads = drive_events(&simulate(&case.scenario))
+        .iter()
+        .filter_map(|e| match e {
+            Event::LoadChanged { t_s, delta_deg, .. } => Some((*t_s, *delta_deg)),
+            _ => None,
+        })
+        .collect();
+    (load_stop, loads)
 }
 
 /// Worn dampers again, on drives whose reference at a stop was a block of 5-7 samples
@@ -480,29 +492,15 @@ fn a_step_from_a_reference_caught_at_a_turning_point_of_the_swing_is_no_load_cha
         ("urban", 102, 0),
     ];
     for (name, seed, load) in drives {
-        let mut s = DriveSpec::parse(&shipped(name)).unwrap();
-        s.seed = seed;
-        let r = s.realistic.as_mut().expect("the scenario is realistic");
-        r.pitch_freq_hz = [0.9, 1.0];
-        r.pitch_damping = [0.12, 0.18];
-        let case = &s.cases()[load];
-        let plan = case.plan.as_ref().unwrap();
-        let load_stop = plan.load_change.map(|(k, _)| plan.stops[k]);
-        let ev = drive_events(&simulate(&case.scenario));
-        let elsewhere: Vec<(f64, f64)> = ev
-            .iter()
-            .filter_map(|e| match e {
-                Event::LoadChanged { t_s, delta_deg, .. } => Some((*t_s, *delta_deg)),
-                _ => None,
-            })
-            .filter(|(t, _)| !load_stop.is_some_and(|(t0, t1, ..)| *t >= t0 && *t <= t1 + 2.0))
-            .collect();
+        let (load_stop, loads) = worn_damper_load_changes(name, seed, load);
+        let at_stop = |t: f64| load_stop.is_some_and(|(t0, t1)| t >= t0 && t <= t1 + 2.0);
+        let elsewhere: Vec<_> = loads.iter().filter(|(t, _)| !at_stop(*t)).collect();
         assert!(
             elsewhere.is_empty(),
             "{name} {seed}: load changes away from the load's stop {elsewhere:?}"
         );
         if load_stop.is_some() {
-            let found = ev.iter().any(|e| matches!(e, Event::LoadChanged { .. }));
+            let found = loads.iter().any(|(t, _)| at_stop(*t));
             assert!(found, "{name} {seed}: the load's own change was not found");
         }
     }
