@@ -445,14 +445,13 @@ fn a_lightly_damped_body_swinging_after_a_stop_is_no_load_change() {
     }
 }
 
+/// A span of a drive (from, to), s.
+type Span = (f64, f64);
+
 /// The stop a drive's load changes at (stop time, drive-off time), if any, and every
 /// load change (time, step in deg) over the drive on a body whose dampers are worn:
 /// pitch mode 0.9-1.0 Hz, damping 0.12-0.18.
-fn worn_damper_load_changes(
-    name: &str,
-    seed: u64,
-    load: usize,
-) -> (Option<(f64, f64)>, Vec<(f64, f64)>) {
+fn worn_damper_load_changes(name: &str, seed: u64, load: usize) -> (Option<Span>, Vec<(f64, f64)>) {
     let mut s = DriveSpec::parse(&shipped(name)).unwrap();
     s.seed = seed;
     let r = s.realistic.as_mut().expect("the scenario is realistic");
