@@ -65,105 +65,84 @@ fn reference_config_and_dbc_load() {
 
 #[test]
 fn config_mistakes_name_the_file_and_field() {
-    let e = err_of(load_variant("syntax", "this is = = not toml", None));
-    assert!(e.contains("leveld.toml"), "{e}");
-    let e = err_of(load_variant(
-        "unknown",
-        &reference_toml().replace("[state]", "[state]\nbogus = 1"),
-        None,
-    ));
-    assert!(e.contains("bogus"), "{e}");
-    let e = err_of(load_variant(
-        "count",
-        &reference_toml().replace("\"IMU_AccX\", ", ""),
-        None,
-    ));
-    assert!(e.contains("acc.signals") && e.contains("needs 3"), "{e}");
-    let e = err_of(load_variant(
-        "est",
-        &(reference_toml() + "gyro_bias_time_constant_s = 0.0\n"),
-        None,
-    ));
-    assert!(e.contains("gyro_bias_time_constant_s"), "{e}");
-    let e = err_of(load_variant(
-        "bias-prior",
-        &reference_toml().replace("acc_bias_prior_mps2 = 0.2", "acc_bias_prior_mps2 = 0.0"),
-        None,
-    ));
-    assert!(
-        e.contains("acc_bias_prior_mps2") && e.contains("offset"),
-        "{e}"
-    );
-    // A key of an earlier version names what replaced it.
-    let e = err_of(load_variant(
-        "renamed",
-        &(reference_toml() + "gyro_bias_alpha = 0.01\n"),
-        None,
-    ));
-    assert!(
-        e.contains("estimator.gyro_bias_alpha") && e.contains("`gyro_bias_time_constant_s`"),
-        "{e}"
-    );
-    let e = err_of(load_variant(
-        "share",
-        &(reference_toml() + "short_stop_weight = 0.0\n"),
-        None,
-    ));
-    assert!(e.contains("short_stop_weight"), "{e}");
-    let e = err_of(load_variant(
-        "age",
-        &reference_toml().replace(
-            "max_wheel_speed_age_s = 0.15",
-            "max_wheel_speed_age_s = -0.1",
+    // Each mistake: a name for its directory, the config text, and what the error
+    // must name (the file or field, and the range or fix where there is one).
+    let mistakes: Vec<(&str, String, &[&str])> = vec![
+        (
+            "syntax",
+            "this is = = not toml".to_string(),
+            &["leveld.toml"],
         ),
-        None,
-    ));
-    assert!(
-        e.contains("max_wheel_speed_age_s") && e.contains("0..1 s"),
-        "{e}"
-    );
-    let e = err_of(load_variant(
-        "chord",
-        &(reference_toml() + "chord_below_acc_noise_ug_rthz = -1.0\n"),
-        None,
-    ));
-    assert!(
-        e.contains("chord_below_acc_noise_ug_rthz") && e.contains("0..10000"),
-        "{e}"
-    );
-    let e = err_of(load_variant(
-        "half",
-        &(reference_toml() + "short_window_share = 1.0\n"),
-        None,
-    ));
-    assert!(
-        e.contains("short_window_share") && e.contains("below 1"),
-        "{e}"
-    );
-    let e = err_of(load_variant(
-        "noise-floor",
-        &(reference_toml() + "chord_noise_sigmas = nan\n"),
-        None,
-    ));
-    assert!(
-        e.contains("chord_noise_sigmas") && e.contains("0 (the configured limits alone)"),
-        "{e}"
-    );
-    let e = err_of(load_variant(
-        "gate",
-        &(reference_toml() + "rest_swing_gate_mps2 = -0.05\n"),
-        None,
-    ));
-    assert!(
-        e.contains("rest_swing_gate_mps2") && e.contains("greater than 0"),
-        "{e}"
-    );
-    let e = err_of(load_variant(
-        "act",
-        &reference_toml().replace("actuator_min_deg = -3.0", "actuator_min_deg = 5.0"),
-        None,
-    ));
-    assert!(e.contains("leveling.actuator_min_deg"), "{e}");
+        (
+            "unknown",
+            reference_toml().replace("[state]", "[state]\nbogus = 1"),
+            &["bogus"],
+        ),
+        (
+            "count",
+            reference_toml().replace("\"IMU_AccX\", ", ""),
+            &["acc.signals", "needs 3"],
+        ),
+        (
+            "est",
+            reference_toml() + "gyro_bias_time_constant_s = 0.0\n",
+            &["gyro_bias_time_constant_s"],
+        ),
+        (
+            "bias-prior",
+            reference_toml().replace("acc_bias_prior_mps2 = 0.2", "acc_bias_prior_mps2 = 0.0"),
+            &["acc_bias_prior_mps2", "offset"],
+        ),
+        (
+            "renamed",
+            reference_toml() + "gyro_bias_alpha = 0.01\n",
+            &["estimator.gyro_bias_alpha", "`gyro_bias_time_constant_s`"],
+        ),
+        (
+            "share",
+            reference_toml() + "short_stop_weight = 0.0\n",
+            &["short_stop_weight"],
+        ),
+        (
+            "age",
+            reference_toml().replace(
+                "max_wheel_speed_age_s = 0.15",
+                "max_wheel_speed_age_s = -0.1",
+            ),
+            &["max_wheel_speed_age_s", "0..1 s"],
+        ),
+        (
+            "chord",
+            reference_toml() + "chord_below_acc_noise_ug_rthz = -1.0\n",
+            &["chord_below_acc_noise_ug_rthz", "0..10000"],
+        ),
+        (
+            "half",
+            reference_toml() + "short_window_share = 1.0\n",
+            &["short_window_share", "below 1"],
+        ),
+        (
+            "noise-floor",
+            reference_toml() + "chord_noise_sigmas = nan\n",
+            &["chord_noise_sigmas", "0 (the configured limits alone)"],
+        ),
+        (
+            "gate",
+            reference_toml() + "rest_swing_gate_mps2 = -0.05\n",
+            &["rest_swing_gate_mps2", "greater than 0"],
+        ),
+        (
+            "act",
+            reference_toml().replace("actuator_min_deg = -3.0", "actuator_min_deg = 5.0"),
+            &["leveling.actuator_min_deg"],
+        ),
+    ];
+    for (tag, toml, names) in mistakes {
+        let e = err_of(load_variant(tag, &toml, None));
+        for name in names {
+            assert!(e.contains(name), "{tag}: {name:?} not in {e}");
+        }
+    }
 }
 
 #[test]
