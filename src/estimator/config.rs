@@ -160,6 +160,9 @@ pub struct EstimatorConfig {
     pub lever_arm_m: [f64; 3],
     /// Refine `lever_arm_m` along x and z from the body rocking seen after each stop.
     pub learn_lever_arm: bool,
+    /// Learn the body's pitch mode (frequency and damping) from the swing after each
+    /// stop, reported with the rest of the suspension (`estimator/mode.rs`).
+    pub learn_pitch_mode: bool,
     /// Remove the horizontal accelerometer bias that the standstill gravity magnitude
     /// reveals over stops at different pitch (`estimator/gravity.rs`) from every window
     /// and its reference. The paper's cancellation of a bias between reference and
@@ -300,6 +303,7 @@ impl Default for EstimatorConfig {
             max_wheel_speed_age_s: 0.15,
             lever_arm_m: [2.0, 0.0, 0.3],
             learn_lever_arm: true,
+            learn_pitch_mode: true,
             correct_acc_bias: true,
             acc_bias_prior_mps2: 0.2,
             history_s: 30.0,

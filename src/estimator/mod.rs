@@ -20,6 +20,7 @@ mod grade;
 mod gravity;
 mod history;
 mod lever;
+mod mode;
 mod motion;
 mod persist;
 mod ring;
@@ -34,6 +35,7 @@ pub use config::{Averaging, ConfigError, EstimatorConfig};
 pub use events::{Condition, DropReason, Estimate, Event, WindowReport};
 pub use grade::GradePitch;
 pub use lever::LeverFit;
+pub use mode::{PitchMode, PitchModeFit};
 pub use persist::{EstimatorState, StateError};
 pub use types::{ImuSample, WheelSpeeds};
 pub use window::RejectReason;
@@ -101,6 +103,8 @@ pub struct Estimator {
     /// Lever-arm fit from the rocking at stops, and the arm in use, m.
     lever_fit: LeverFit,
     lever_arm: Vector3<f64>,
+    /// The body's pitch mode, from the swing after each stop.
+    mode_fit: mode::PitchModeFit,
     /// Tracker of the motion after the IMU ended a standstill in the dead zone.
     dead_zone_motion: Option<motion::MotionTracker>,
     fwd: WindowIntegrator,
@@ -177,6 +181,7 @@ impl Estimator {
             wheel_marks: [None; WHEEL_MARKS],
             lever_fit: LeverFit::default(),
             lever_arm: Vector3::from(cfg.lever_arm_m),
+            mode_fit: Default::default(),
             settle_queue: std::collections::VecDeque::with_capacity(
                 (4.0 * cfg.still_window_s * MAX_RATE_HZ).ceil() as usize + 2,
             ),

@@ -5,6 +5,7 @@ use super::average::Averager;
 use super::grade::GradePitch;
 use super::gravity::GravityFilter;
 use super::lever::LeverFit;
+use super::mode::PitchModeFit;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -40,6 +41,9 @@ pub struct EstimatorState {
     /// Mean travel yaw of the accepted windows in the IMU's frame, rad, and how many.
     #[serde(default)]
     pub travel_yaw: Option<(f64, u32)>,
+    /// The body's pitch mode as the stops' swings showed it (see `mode`).
+    #[serde(default)]
+    pub pitch_mode_fit: Option<PitchModeFit>,
 }
 
 impl EstimatorState {
@@ -101,6 +105,7 @@ impl Estimator {
             gravity_mps2: self.gravity.map(|g| g.x.x),
             accel_bias_xy_mps2: self.gravity.map(|g| [g.x.y, g.x.z]),
             lever_fit: Some(self.lever_fit),
+            pitch_mode_fit: Some(self.mode_fit),
             stop_gravity_mps2: self.stop_bias.map(|g| [g.x.x, g.x.y, g.x.z]),
             grade_pitch: Some(self.grade),
             stop_bias_sd_mps2: self.stop_bias.map(|_| self.acc_bias_sd_mps2()),
@@ -191,6 +196,10 @@ impl Estimator {
         if st.grade_pitch.is_some_and(|g| !g.is_plausible()) {
             return Err(StateError::Implausible("grade_pitch"));
         }
+        if st.pitch_mode_fit.is_some_and(|f| !f.is_plausible()) {
+            return Err(StateError::Implausible("pitch_mode_fit"));
+        }
+        self.mode_fit = st.pitch_mode_fit.unwrap_or_default();
         self.grade = st.grade_pitch.unwrap_or_default();
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         let prior = Vector3::from(self.cfg.lever_arm_m);

@@ -112,6 +112,10 @@ const MIN_SETTLED_SAMPLES: u64 = 3;
 /// Hz, damping 0.15-0.25), 4 seeds each, 8 and 12 of 16.
 const THIN_REF_S: f64 = 1.0;
 
+/// How much of a stop's swing, from the rest edge, the pitch-mode fit reads, s: the
+/// swing of a worn damper's body lasts about three.
+const MODE_SPAN_S: f64 = 4.0;
+
 /// A block of settled samples that differed from the stop's reference, waiting for a
 /// second one to confirm a new pitch.
 #[derive(Debug, Clone, Copy)]
@@ -1024,6 +1028,8 @@ impl Estimator {
         // The rocking after this stop refines the lever arm before the walk uses it.
         let at_rest = self.index_at(st.seg_last_s);
         self.learn_lever(q_ref, rest, settled, at_rest, g);
+        let swing_end = at_rest.min(rest + self.samples_in(MODE_SPAN_S));
+        self.learn_pitch_mode(q_ref, settled, rest, swing_end, g);
         let (rest, q0) = self.rocking_rest_edge(q_ref, settled, floor, g);
         let Some((q_win, g_win)) = self.window_reference(&st.mean()) else {
             let r = Err(RejectReason::NotStill);
