@@ -155,15 +155,28 @@ fn simulated_drive_leveling_output_matches_truth_once_valid() {
     assert!(s.estimates_accepted >= 10, "{s:?}");
     // The summary says what was learnt of the suspension: this body's dive per m/s^2
     // of braking, to within a tenth.
-    let sim_k = leveld::sim::presets::preset("multi-stop", 7)
+    let vehicle = leveld::sim::presets::preset("multi-stop", 7)
         .unwrap()
-        .vehicle
-        .pitch_per_accel_deg;
+        .vehicle;
+    let sim_k = vehicle.pitch_per_accel_deg;
     let susp = s.final_state.suspension;
-    eprintln!("{susp:?} for {sim_k}");
+    eprintln!("{susp:?} for {vehicle:?}");
     assert!(
         (susp.pitch_per_braking_deg_per_mps2 - sim_k).abs() < 0.1 * sim_k,
         "{susp:?} for a body of {sim_k} deg per m/s^2"
+    );
+    // And the body's pitch mode from its swing after the stops.
+    let (hz, zeta) = (
+        susp.pitch_mode_hz.expect("learnt"),
+        susp.pitch_mode_damping.expect("learnt"),
+    );
+    assert!(
+        (hz / vehicle.pitch_freq_hz - 1.0).abs() < 0.02,
+        "{susp:?} for {vehicle:?}"
+    );
+    assert!(
+        (zeta / vehicle.pitch_damping - 1.0).abs() < 0.15,
+        "{susp:?} for {vehicle:?}"
     );
     let out = p.output().clone();
     let mut seen_valid = 0;

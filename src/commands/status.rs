@@ -166,11 +166,7 @@ fn write_report(out: &mut impl Write, r: &StatusReport, now: f64, running: bool)
         r.wall_clock_steps
     )?;
     if let Some(s) = r.suspension {
-        writeln!(
-            out,
-            "suspension: body pitch {:.3} deg per m/s^2 of braking, {:.2} of it standing on a grade",
-            s.pitch_per_braking_deg_per_mps2, s.grade_share
-        )?;
+        writeln!(out, "suspension: {s}")?;
     }
     match &r.last_save {
         Some(s) if s.ok => writeln!(

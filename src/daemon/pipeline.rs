@@ -27,6 +27,26 @@ pub struct Suspension {
     /// Share of that pitch the body shows standing on a grade (1 until stops at
     /// different grades tell).
     pub grade_share: f64,
+    /// The body's pitch mode from its swing after the stops: natural frequency, Hz, and
+    /// damping ratio (absent until two stops showed it).
+    #[serde(default)]
+    pub pitch_mode_hz: Option<f64>,
+    #[serde(default)]
+    pub pitch_mode_damping: Option<f64>,
+}
+
+impl std::fmt::Display for Suspension {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "body pitch {:.3} deg per m/s^2 of braking, {:.2} of it standing on a grade",
+            self.pitch_per_braking_deg_per_mps2, self.grade_share
+        )?;
+        match (self.pitch_mode_hz, self.pitch_mode_damping) {
+            (Some(hz), Some(z)) => write!(f, "; pitch mode {hz:.2} Hz, damping {z:.2}"),
+            _ => write!(f, "; pitch mode not yet seen"),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
@@ -264,9 +284,12 @@ impl Pipeline {
     /// What the estimator learnt of the suspension: the body's pitch per m/s^2 of
     /// braking, deg, and the share of it the body shows standing on a grade.
     pub fn suspension(&self) -> Suspension {
+        let mode = self.est.pitch_mode();
         Suspension {
             pitch_per_braking_deg_per_mps2: self.est.pitch_per_force_deg(),
             grade_share: self.est.grade_share(),
+            pitch_mode_hz: mode.map(|m| m.freq_hz()),
+            pitch_mode_damping: mode.map(|m| m.damping_ratio()),
         }
     }
 

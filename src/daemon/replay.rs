@@ -355,12 +355,7 @@ pub fn write_summary_text(out: &mut dyn Write, s: &Summary) -> std::io::Result<(
         s.estimates_withdrawn,
         s.leveling_frames
     )?;
-    let susp = s.final_state.suspension;
-    writeln!(
-        out,
-        "suspension: body pitch {:.3} deg per m/s^2 of braking, {:.2} of it standing on a grade",
-        susp.pitch_per_braking_deg_per_mps2, susp.grade_share
-    )?;
+    writeln!(out, "suspension: {}", s.final_state.suspension)?;
     match s.final_state.road_to_body_pitch_deg {
         Some(p) => writeln!(
             out,
