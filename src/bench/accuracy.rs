@@ -135,6 +135,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         axle_chord: false,
         ..d()
     };
+    let no_mode = EstimatorConfig {
+        learn_pitch_mode: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -160,6 +164,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         short_window_share: 0.0,
         chord_noise_sigmas: 0.0,
         correct_grade_pitch: false,
+        learn_pitch_mode: false,
         ..d()
     };
     vec![
@@ -198,6 +203,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_noise_chord, "no-chord-noise-floor")),
         Box::new(Leveld::new(no_grade, "no-grade-pitch")),
         Box::new(Leveld::new(no_axle, "no-axle-chord")),
+        Box::new(Leveld::new(no_mode, "no-pitch-mode")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]

@@ -161,7 +161,8 @@ pub struct EstimatorConfig {
     /// Refine `lever_arm_m` along x and z from the body rocking seen after each stop.
     pub learn_lever_arm: bool,
     /// Learn the body's pitch mode (frequency and damping) from the swing after each
-    /// stop, reported with the rest of the suspension (`estimator/mode.rs`).
+    /// stop, count the dive under braking from the pitch the body swings about, and
+    /// report the mode with the rest of the suspension (`estimator/mode.rs`).
     pub learn_pitch_mode: bool,
     /// Remove the horizontal accelerometer bias that the standstill gravity magnitude
     /// reveals over stops at different pitch (`estimator/gravity.rs`) from every window

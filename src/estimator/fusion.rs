@@ -348,8 +348,8 @@ impl Estimator {
             return 0.0;
         }
         if condition == Condition::DecelBeforeStop {
-            self.grade
-                .learn(g.mean_accel_mps2, g.mean_pitch_rad - imu_pitch_rad);
+            let rest = g.rest_centre_pitch_rad.unwrap_or(imu_pitch_rad);
+            self.grade.learn(g.mean_accel_mps2, g.mean_pitch_rad - rest);
         }
         self.avg
             .set_pitch_per_force(self.grade.per_force_rad().to_degrees());
@@ -494,6 +494,7 @@ mod tests {
             mean_accel_mps2: 0.0,
             travel_yaw_rad: 0.0,
             start_up_y: 0.0,
+            rest_centre_pitch_rad: None,
             axle: None,
         };
         let mut shift = None;

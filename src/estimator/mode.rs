@@ -8,9 +8,11 @@
 //! theta up to a constant, so each stop's swing is a linear fit of the angular
 //! acceleration on (theta, rate, 1); the constant holds the stop's own c. Stiffness k
 //! and damping d belong to the car: the stops' fits, each with its constant taken out,
-//! add up. leveld reports the mode's frequency and damping ratio with what else it
-//! learnt of the suspension (a damping ratio that falls over the months is a damper
-//! wearing out).
+//! add up. With them any sample shows how far the body stood from the pitch it swings
+//! about, -(theta'' + d theta') / k: the body's dive under braking is counted from
+//! there (`grade.rs`). leveld reports the mode's frequency and damping ratio with what
+//! else it learnt of the suspension (a damping ratio that falls over the months is a
+//! damper wearing out).
 
 use super::Estimator;
 use super::attitude;
@@ -246,6 +248,20 @@ impl Estimator {
             };
         }
         Some(mode)
+    }
+    /// The attitude `q` of history sample `i` turned to the pitch the body swings about
+    /// there, `-(theta'' + d theta') / k` away (in the fit's own terms, where the
+    /// smoothing's gains cancel); `None` without a learnt mode or where the history
+    /// cannot show the swing.
+    pub(super) fn pitch_at_swing_centre(
+        &self,
+        q: UnitQuaternion<f64>,
+        i: usize,
+    ) -> Option<UnitQuaternion<f64>> {
+        let mode = self.mode_fit.mode()?;
+        let (alpha, omega) = self.rocking_at(i)?;
+        let off = mode.offset_rad(alpha.y, omega.y);
+        Some(q * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -off))
     }
 }
 

@@ -1070,14 +1070,19 @@ impl Estimator {
             },
         };
         let pitch_win = pitch_of(&q_win);
+        // The walk left the reference at its first settled sample, a turning point of
+        // the swing after the stop and on the same side of the rest pitch at every
+        // stop (the body swings back from its dive): the dive is counted from the
+        // swing's centre there.
+        let centre = self
+            .pitch_at_swing_centre(q_win, settled)
+            .map(|q| pitch_of(&q));
         // The axle point's pitch is carried from the rest edge; against a reference
         // taken after a load it would read the load's turn as the road's.
-        let r = r.map(|g| {
-            if load_before_settled {
-                WindowGeometry { axle: None, ..g }
-            } else {
-                g
-            }
+        let r = r.map(|g| WindowGeometry {
+            axle: g.axle.filter(|_| !load_before_settled),
+            rest_centre_pitch_rad: centre,
+            ..g
         });
         let times = (st.t_rest_s, st.segment_mid_s());
         self.report_window_weighted(r, Condition::DecelBeforeStop, pitch_win, times, 1.0, emit);

@@ -103,6 +103,10 @@ pub struct WindowGeometry {
     pub start_up_y: f64,
     /// Where the walk had gone one wheelbase, on a window whose slope is the chord.
     pub axle: Option<AxlePoint>,
+    /// The pitch the body swung about where the walk left the reference, rad (the
+    /// caller's; `None` where the pitch mode is not known): what its dive is counted
+    /// from (`grade.rs`).
+    pub rest_centre_pitch_rad: Option<f64>,
 }
 
 /// The walk one wheelbase from rest. Forward, the rear wheels stand there where the
@@ -504,6 +508,7 @@ impl WindowIntegrator {
             // A backward walk goes tail-first: its path points against the travel.
             travel_yaw_rad: (sign * w.body_path.1).atan2(sign * w.body_path.0),
             start_up_y: (s.q0.inverse() * Vector3::z()).y,
+            rest_centre_pitch_rad: None,
             axle: axle.map(|(z, len, pitch_rad, accel_mps2)| AxlePoint {
                 slope_rad: (sign * z).atan2(len),
                 pitch_rad,
