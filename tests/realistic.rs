@@ -2305,13 +2305,8 @@ fn a_noise_free_imu_gives_brisk_drive_offs_after_short_stops_good_windows() {
     assert!(rms(&errs) < 0.25, "rms {:.3}", rms(&errs));
 }
 
-/// The pitch mode leveld learnt over a drive and the one simulated: (Hz, damping) each.
-fn learnt_pitch_mode(name: &str, seed: u64, sets: &[&str]) -> ((f64, f64), (f64, f64)) {
-    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-    let mut s = DriveSpec::parse_with(&shipped(name), &sets).unwrap();
-    s.seed = seed;
-    let case = s.cases().remove(0);
-    let drive = simulate(&case.scenario);
+/// leveld, as configured by default, after the whole of `drive`.
+fn fed(drive: &leveld::sim::Drive) -> Estimator {
     let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
     for input in drive.merged() {
         match input {
@@ -2319,7 +2314,17 @@ fn learnt_pitch_mode(name: &str, seed: u64, sets: &[&str]) -> ((f64, f64), (f64,
             Input::Wheels(w) => est.push_wheels(w, &mut |_| {}),
         }
     }
-    let m = est
+    est
+}
+
+/// The pitch mode leveld learnt over a drive and the one simulated: (Hz, damping) each.
+fn learnt_pitch_mode(name: &str, seed: u64, sets: &[&str]) -> ((f64, f64), (f64, f64)) {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    let mut s = DriveSpec::parse_with(&shipped(name), &sets).unwrap();
+    s.seed = seed;
+    let case = s.cases().remove(0);
+    let drive = simulate(&case.scenario);
+    let m = fed(&drive)
         .pitch_mode()
         .expect("a drive of many stops shows its mode");
     let v = &case.scenario.vehicle;
@@ -2388,14 +2393,7 @@ fn the_dive_under_braking_is_counted_from_the_centre_of_the_swing_after_the_stop
         let mut s = DriveSpec::parse_with(&shipped("stop-and-go"), &quiet).unwrap();
         s.seed = seed;
         for case in s.cases() {
-            let drive = simulate(&case.scenario);
-            let mut est = Estimator::new(EstimatorConfig::default()).unwrap();
-            for input in drive.merged() {
-                match input {
-                    Input::Imu(x) => est.push_imu(x, &mut |_| {}),
-                    Input::Wheels(w) => est.push_wheels(w, &mut |_| {}),
-                }
-            }
+            let est = fed(&simulate(&case.scenario));
             ratios.push(est.pitch_per_force_deg() / case.scenario.vehicle.pitch_per_accel_deg);
         }
     }
