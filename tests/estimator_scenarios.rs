@@ -284,6 +284,16 @@ fn the_accelerometer_bias_learnt_at_stops_survives_a_restart_and_a_corrupt_one_i
             .expect_err("an implausible record must be refused");
         assert!(err.to_string().contains(field), "{err}");
     }
+    // A pitch-mode fit no set of stops could give (a negative sum of squares).
+    let mut json = serde_json::to_value(&saved).unwrap();
+    json["pitch_mode_fit"] =
+        serde_json::json!({"m": [-1.0, 0.0, 1.0], "v": [0.0, 0.0], "stops": 3});
+    let corrupt: leveld::estimator::EstimatorState = serde_json::from_value(json).unwrap();
+    let err = Estimator::new(EstimatorConfig::default())
+        .unwrap()
+        .restore(&corrupt)
+        .expect_err("an implausible pitch-mode fit must be refused");
+    assert!(err.to_string().contains("pitch_mode_fit"), "{err}");
 }
 
 /// Estimate minus the load's pitch after ten stops on a constant grade of `grade_pct`,
