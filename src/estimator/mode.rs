@@ -31,6 +31,10 @@ const MIN_SWING_RAD: f64 = 0.02 * std::f64::consts::PI / 180.0;
 /// Stops the mode needs before it is used.
 const MIN_STOPS: u32 = 2;
 
+/// Each stop keeps this share of what the earlier ones taught (about the last fifty
+/// count): the mode follows a load, tyre pressure or a damper wearing out.
+const FORGET: f64 = 0.98;
+
 /// Samples of one stop's swing: normal equations of
 /// alpha = -k theta - d rate + (k c + d b) + k b tau, where tau is the time since the
 /// rest edge. The last two terms belong to the stop: the pitch it swings about, and a
@@ -151,12 +155,12 @@ impl PitchModeFit {
             return false;
         }
         for (a, b) in self.m.iter_mut().zip(m) {
-            *a += b;
+            *a = FORGET * *a + b;
         }
         for (a, b) in self.v.iter_mut().zip(v) {
-            *a += b;
+            *a = FORGET * *a + b;
         }
-        self.stops += 1;
+        self.stops = self.stops.saturating_add(1);
         true
     }
 
@@ -205,17 +209,24 @@ impl Estimator {
         let up = Vector3::new(0.0, 0.0, g);
         let mut q = self.carry(q_at, at, last);
         let mut sums = SwingSums::default();
+        // A knock within 2h samples of a sample spoils its smoothing. The walk goes
+        // down the history: the lowest knock seen so far is the only one that can
+        // still be that close.
+        let beyond = |j: usize, q: &UnitQuaternion<f64>| {
+            (self.hist.get(j).acc() - q.inverse() * up).amax() > super::lever::MAX_ROCKING_MPS2
+        };
+        let mut knock_at = (last - 2 * h..=(last + 2 * h).min(n - 1)).find(|&j| beyond(j, &q));
         let mut i = last;
         while i > first {
-            if let Some((alpha, omega)) = self.rocking_at(i) {
-                let g_imu = q.inverse() * up;
-                let knock = (i - 2 * h..=(i + 2 * h).min(n - 1)).any(|j| {
-                    (self.hist.get(j).acc() - g_imu).amax() > super::lever::MAX_ROCKING_MPS2
-                });
-                if !knock {
-                    let theta = (q_at.inverse() * q).scaled_axis().y;
-                    sums.add(theta, omega.y, alpha.y, self.hist.get(i).t_s - t_rest);
-                }
+            if let Some((alpha, omega)) = self.rocking_at(i)
+                && knock_at.is_none_or(|k| k > i + 2 * h)
+            {
+                let theta = (q_at.inverse() * q).scaled_axis().y;
+                sums.add(theta, omega.y, alpha.y, self.hist.get(i).t_s - t_rest);
+            }
+            let entering = i - 1 - 2 * h;
+            if beyond(entering, &q) {
+                knock_at = Some(entering);
             }
             let (a, b) = (self.hist.get(i - 1), self.hist.get(i));
             let w = (a.gyro_rps() + b.gyro_rps()) * 0.5 - bias;
@@ -311,6 +322,27 @@ mod tests {
                 "{t} {r} {a}"
             );
         }
+    }
+
+    #[test]
+    fn the_mode_follows_a_damper_wearing_out() {
+        let mut fit = PitchModeFit::default();
+        let add = |fit: &mut PitchModeFit, zeta: f64| {
+            let mut s = SwingSums::default();
+            for (k, (t, r, a)) in swing(1.2, zeta, 0.004, 0.0).into_iter().enumerate() {
+                s.add(t, r, a, 0.01 * k as f64);
+            }
+            assert!(fit.add_stop(&s));
+        };
+        for _ in 0..500 {
+            add(&mut fit, 0.3);
+        }
+        assert!((fit.mode().unwrap().damping_ratio() - 0.3).abs() < 0.01);
+        for _ in 0..150 {
+            add(&mut fit, 0.15);
+        }
+        let z = fit.mode().unwrap().damping_ratio();
+        assert!((z - 0.15).abs() < 0.02, "{z}");
     }
 
     #[test]
