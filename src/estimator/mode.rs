@@ -5,10 +5,10 @@
 //! on worn dampers it swings at about 1 Hz for three. The swing is a damped
 //! second-order mode: theta'' = -k (theta - c) - d theta', with c the pitch the body
 //! swings about. The gyro gives the rate and its derivative, and the gyro-carried pitch
-//! theta up to a constant, so each stop's swing is a linear fit of the angular
-//! acceleration on (theta, rate, 1); the constant holds the stop's own c. Stiffness k
-//! and damping d belong to the car: the stops' fits, each with its constant taken out,
-//! add up. With them any sample shows how far the body stood from the pitch it swings
+//! theta up to a constant and a drift, so each stop's swing is a linear fit of the
+//! angular acceleration on (theta, rate, 1, t); the last two terms hold the stop's own
+//! c and drift (`SwingSums`). Stiffness k and damping d belong to the car: the stops'
+//! fits, each with its own terms taken out, add up. With them any sample shows how far the body stood from the pitch it swings
 //! about, -(theta'' + d theta') / k: the body's dive under braking is counted from
 //! there (`grade.rs`). leveld reports the mode's frequency and damping ratio with what
 //! else it learnt of the suspension (a damping ratio that falls over the months is a
