@@ -24,8 +24,8 @@ use serde::{Deserialize, Serialize};
 const FREQ_RANGE_HZ: (f64, f64) = (0.5, 3.0);
 const DAMPING_RANGE: (f64, f64) = (0.03, 1.0);
 
-/// A stop whose gyro-carried pitch moved less than this (rms about its mean) has no
-/// swing to fit: the gyro's noise would decide the mode, rad (0.02 deg).
+/// A stop whose gyro-carried pitch moved less than this (rms about its own straight
+/// line in time) has no swing to fit: the gyro's noise would decide the mode, rad (0.02 deg).
 const MIN_SWING_RAD: f64 = 0.02 * std::f64::consts::PI / 180.0;
 
 /// Stops the mode needs before it is used.
@@ -260,6 +260,7 @@ impl Estimator {
         }
         Some(mode)
     }
+
     /// The attitude `q` of history sample `i` turned to the pitch the body swings about
     /// there, `-(theta'' + d theta') / k` away (in the fit's own terms, where the
     /// smoothing's gains cancel); `None` without a learnt mode or where the history
