@@ -139,6 +139,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         learn_pitch_mode: false,
         ..d()
     };
+    let fixed_weights = EstimatorConfig {
+        noise_scaled_weights: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -204,6 +208,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_grade, "no-grade-pitch")),
         Box::new(Leveld::new(no_axle, "no-axle-chord")),
         Box::new(Leveld::new(no_mode, "no-pitch-mode")),
+        Box::new(Leveld::new(fixed_weights, "weights-at-300-ug")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]

@@ -197,6 +197,11 @@ pub struct EstimatorConfig {
     /// Weigh each window by its predicted error (long, slow windows integrate more
     /// accelerometer noise) instead of equally.
     pub weight_windows: bool,
+    /// Scale the part of that error which is the accelerometer's noise by the noise
+    /// learnt at rest (the model was fitted at 300 ug/sqrt(Hz)): with a quiet
+    /// accelerometer slow windows weigh nearly as much as brisk ones, and windows of
+    /// stops too short to settle less (`estimator/fusion.rs`, `short_stop_share`).
+    pub noise_scaled_weights: bool,
     /// Follow the body's pitch at rest with the gyro, so that a load still ramping in
     /// shows in the estimate before the settled blocks confirm it and is applied at
     /// drive-off.
@@ -314,6 +319,7 @@ impl Default for EstimatorConfig {
             shift_deg: 0.4,
             shift_windows: 3,
             weight_windows: true,
+            noise_scaled_weights: true,
             live_standstill_pitch: true,
             pair_stop_windows: true,
             short_stop_windows: true,

@@ -212,7 +212,13 @@ impl Estimator {
                 // A window known to be less reliable than a settled one neither starts
                 // nor breaks a run of windows that show a shift.
                 let weight = if self.cfg.weight_windows {
-                    window_weight(g.duration_s, g.distance_m) * weight_share
+                    let noise = self.window_noise_ratio();
+                    let share = if weight_share < 1.0 {
+                        short_stop_share(g.duration_s, g.distance_m, weight_share, noise)
+                    } else {
+                        weight_share
+                    };
+                    window_weight(g.duration_s, g.distance_m, noise) * share
                 } else {
                     1.0
                 };
@@ -405,13 +411,59 @@ const WINDOW_VAR_PER_X_DEG2: f64 = 0.015;
 /// of 3 m are 0.6-1.3.
 const WINDOW_REF_X: f64 = 1.0;
 
+/// Accelerometer noise density the error model was fitted at, m/s^2/sqrt(Hz): the
+/// realistic family's 300 ug/sqrt(Hz).
+const WINDOW_MODEL_NOISE_MPS2_RTHZ: f64 = 300e-6 * 9.80665;
+
+/// The model's x = T^3 / D^2 of a window of `duration_s` over `distance_m`, s^3/m^2.
+fn window_x(duration_s: f64, distance_m: f64) -> f64 {
+    duration_s.max(0.0).powi(3) / distance_m.max(0.1).powi(2)
+}
+
+/// Predicted variance of a window of x = T^3 / D^2 from an accelerometer whose noise
+/// density is `noise_ratio` times the model's, deg^2: the part that grows with x is
+/// the noise's, and goes as its square.
+fn window_var_deg2(x: f64, noise_ratio: f64) -> f64 {
+    WINDOW_VAR_FIXED_DEG2 + WINDOW_VAR_PER_X_DEG2 * noise_ratio * noise_ratio * x
+}
+
 /// Weight of a window of `duration_s` over `distance_m` in the average: its inverse
 /// predicted variance relative to that of the reference window, at most 1 (so the
-/// weight still counts windows towards a converged status) and at least 0.1.
-pub(super) fn window_weight(duration_s: f64, distance_m: f64) -> f64 {
-    let var = |x: f64| WINDOW_VAR_FIXED_DEG2 + WINDOW_VAR_PER_X_DEG2 * x;
-    let x = duration_s.max(0.0).powi(3) / distance_m.max(0.1).powi(2);
-    (var(WINDOW_REF_X) / var(x)).clamp(0.1, 1.0)
+/// weight still counts windows towards a converged status) and at least 0.1, for an
+/// accelerometer `noise_ratio` times as noisy as the model's.
+pub(super) fn window_weight(duration_s: f64, distance_m: f64, noise_ratio: f64) -> f64 {
+    let x = window_x(duration_s, distance_m);
+    (window_var_deg2(WINDOW_REF_X, noise_ratio) / window_var_deg2(x, noise_ratio)).clamp(0.1, 1.0)
+}
+
+/// Share of its settled weight that a window from a stop too short to settle keeps,
+/// given `share_at_model` (`short_stop_weight`) at the model's noise and the walk's
+/// noise `noise_ratio` times the model's. The reference of such a stop is read on a
+/// swinging body: an error of the body's that a quieter accelerometer does not shrink,
+/// kept at the size it has at the model's noise, (1 / share - 1) times the window's own.
+pub(super) fn short_stop_share(
+    duration_s: f64,
+    distance_m: f64,
+    share_at_model: f64,
+    noise_ratio: f64,
+) -> f64 {
+    let x = window_x(duration_s, distance_m);
+    let own = window_var_deg2(x, noise_ratio);
+    let extra = window_var_deg2(x, 1.0) * (1.0 / share_at_model - 1.0);
+    own / (own + extra)
+}
+
+impl Estimator {
+    /// The walk's accelerometer noise learnt at rest over the model's, 1 before it is
+    /// learnt (or with `noise_scaled_weights` off).
+    fn window_noise_ratio(&self) -> f64 {
+        if !self.cfg.noise_scaled_weights {
+            return 1.0;
+        }
+        self.walk_acc_noise_per_rthz()
+            .filter(|n| n.is_finite() && *n >= 0.0)
+            .map_or(1.0, |n| n / WINDOW_MODEL_NOISE_MPS2_RTHZ)
+    }
 }
 
 /// The first wheel speed after a drive-off may differ from the speed the forward window
@@ -477,7 +529,7 @@ impl Estimator {
 mod tests {
     use super::super::{Condition, Estimator, EstimatorConfig, Event};
     use super::window::WindowGeometry;
-    use super::window_weight;
+    use super::{short_stop_share, window_weight};
 
     /// Report one accepted window of `value_deg` that took `duration_s` over 3 m;
     /// returns the shift it caused, deg.
@@ -547,14 +599,33 @@ mod tests {
     #[test]
     fn long_windows_weigh_less_and_the_weight_is_bounded() {
         // 2 s over 2.8 m is the reference window; a brisk 3 m window weighs as much.
-        assert!((window_weight(2.0, 8f64.sqrt()) - 1.0).abs() < 1e-12);
-        assert_eq!(window_weight(1.8, 3.0), 1.0);
+        assert!((window_weight(2.0, 8f64.sqrt(), 1.0) - 1.0).abs() < 1e-12);
+        assert_eq!(window_weight(1.8, 3.0, 1.0), 1.0);
         // A gentle drive-off (0.4 m/s^2 over 3 m) counts a quarter of that.
-        let gentle = window_weight((2.0 * 3.0 / 0.4f64).sqrt(), 3.0);
+        let gentle = window_weight((2.0 * 3.0 / 0.4f64).sqrt(), 3.0, 1.0);
         assert!(gentle > 0.2 && gentle < 0.3, "{gentle}");
         // The same duration over a longer distance is the better window.
-        assert!(window_weight(3.0, 2.0) < window_weight(3.0, 3.0));
-        assert_eq!(window_weight(0.1, 3.0), 1.0);
-        assert_eq!(window_weight(20.0, 3.0), 0.1);
+        assert!(window_weight(3.0, 2.0, 1.0) < window_weight(3.0, 3.0, 1.0));
+        assert_eq!(window_weight(0.1, 3.0, 1.0), 1.0);
+        assert_eq!(window_weight(20.0, 3.0, 1.0), 0.1);
+    }
+
+    #[test]
+    fn a_quiet_accelerometer_weighs_slow_windows_alike_but_short_stops_less() {
+        let gentle = (2.0 * 3.0 / 0.4f64).sqrt();
+        // At a tenth of the model's noise a gentle window is nearly as good as a brisk one.
+        assert!(window_weight(gentle, 3.0, 0.1) > 0.9);
+        assert!(window_weight(gentle, 3.0, 1.0) < 0.3);
+        for t in [1.8, gentle] {
+            // At the model's noise: the configured share.
+            assert!((short_stop_share(t, 3.0, 0.28, 1.0) - 0.28).abs() < 1e-12);
+            // A tenth of the noise: the walk's own error is small, the reference's is not.
+            let quiet = short_stop_share(t, 3.0, 0.28, 0.1);
+            assert!(quiet > 0.02 && quiet < 0.2, "{t} {quiet}");
+            // Three times the noise: the walk's error hides the reference's.
+            let noisy = short_stop_share(t, 3.0, 0.28, 3.0);
+            assert!(noisy > 0.6 && noisy < 1.0, "{t} {noisy}");
+        }
+        assert_eq!(short_stop_share(2.0, 3.0, 1.0, 0.1), 1.0);
     }
 }
