@@ -216,10 +216,12 @@ pub struct EstimatorConfig {
     /// drive-off. Off: such stops give no window.
     pub short_stop_windows: bool,
     /// Weight of a window from a stop too short to settle, as a share of a settled
-    /// window of the same length: the rest samples still carry the heave of the body,
-    /// and the window starts with the body's unknown vertical speed. Over 64 realistic
-    /// drives (8 seeds of each scenario and load) the forward windows of such stops were
-    /// 0.62 deg rms off, those of settled stops 0.33: (0.33 / 0.62)^2.
+    /// window of the same length, for an accelerometer of 300 ug/sqrt(Hz): the rest
+    /// samples still carry the heave of the body, and the window starts with the body's
+    /// unknown vertical speed. Over 64 realistic drives (8 seeds of each scenario and
+    /// load) the forward windows of such stops were 0.62 deg rms off, those of settled
+    /// stops 0.33: (0.33 / 0.62)^2. With `noise_scaled_weights` the share follows the
+    /// noise learnt at rest, smaller for a quieter accelerometer.
     pub short_stop_weight: f64,
     /// The motion tracker that ends a standstill in the wheels' dead zone stands on the
     /// mean force turned by the gyro into the body frame at its own sample, not on the

@@ -413,7 +413,7 @@ const WINDOW_REF_X: f64 = 1.0;
 
 /// Accelerometer noise density the error model was fitted at, m/s^2/sqrt(Hz): the
 /// realistic family's 300 ug/sqrt(Hz).
-const WINDOW_MODEL_NOISE_MPS2_RTHZ: f64 = 300e-6 * 9.80665;
+const WINDOW_MODEL_NOISE_MPS2_RTHZ: f64 = 300e-6 * super::STANDARD_GRAVITY_MPS2;
 
 /// The model's x = T^3 / D^2 of a window of `duration_s` over `distance_m`, s^3/m^2.
 fn window_x(duration_s: f64, distance_m: f64) -> f64 {
