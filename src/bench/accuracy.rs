@@ -143,6 +143,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         noise_scaled_weights: false,
         ..d()
     };
+    let keep_bias = EstimatorConfig {
+        rebias_windows: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -209,6 +213,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_axle, "no-axle-chord")),
         Box::new(Leveld::new(no_mode, "no-pitch-mode")),
         Box::new(Leveld::new(fixed_weights, "weights-at-300-ug")),
+        Box::new(Leveld::new(keep_bias, "windows-keep-their-bias")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]

@@ -20,6 +20,14 @@ pub struct Averager {
     /// pitch from its grade is `grade_share` times this times its pull.
     #[serde(default)]
     per_force_deg: f64,
+    /// Per entry, the accelerometer's x bias its windows were measured with, m/s^2
+    /// (`None`: none to follow, as for an end-of-line seed or a state written before it
+    /// was kept). See [`Averager::set_acc_bias_x`].
+    #[serde(default)]
+    bias_x_mps2: Vec<Option<f64>>,
+    /// The x bias the stops know now, m/s^2: every entry is read as if measured with it.
+    #[serde(default)]
+    acc_bias_x_mps2: f64,
     /// What the windows of earlier loads (or a saved state) showed of the grade share,
     /// the prior of the current fit (see `GradeShare`).
     #[serde(default)]
@@ -91,6 +99,8 @@ const SHARE_PRIOR_SD: f64 = 0.5;
 /// The share is kept to 0..1.5: a body does not squat against the force on it, and
 /// more than 1.5 times its braking pitch is a fit to noise.
 const SHARE_RANGE: (f64, f64) = (0.0, 1.5);
+/// A saved entry's bias beyond this is not an accelerometer's (5 m/s^2: half a g).
+const MAX_BIAS_X_MPS2: f64 = 5.0;
 
 impl Default for GradeShare {
     fn default() -> Self {
@@ -122,6 +132,8 @@ impl Averager {
             entries: Vec::with_capacity(capacity),
             pulls_mps2: Vec::with_capacity(capacity),
             per_force_deg: 0.0,
+            bias_x_mps2: Vec::with_capacity(capacity),
+            acc_bias_x_mps2: 0.0,
             share_prior: GradeShare::default(),
             accepted: 0,
             carried_ss: 0.0,
@@ -151,7 +163,8 @@ impl Averager {
     /// pulls `pull_mps2` (g sin(slope)) along the road: its value still holds the
     /// body's pitch on that grade, which the fit takes out (see [`GradeShare`]).
     pub fn push_on_grade(&mut self, value_deg: f64, weight: f64, pull_mps2: f64) -> PairHandle {
-        self.push_weighted(value_deg, weight, pull_mps2);
+        let b = self.acc_bias_x_mps2;
+        self.push_weighted(value_deg, weight, pull_mps2, Some(b));
         self.accepted = self.accepted.saturating_add(1);
         PairHandle(self.changes)
     }
@@ -161,6 +174,20 @@ impl Averager {
     pub fn set_pitch_per_force(&mut self, per_force_deg: f64) {
         if per_force_deg.is_finite() {
             self.per_force_deg = per_force_deg;
+        }
+    }
+
+    /// The accelerometer's x bias the stops know now, m/s^2. The stops learn it slowly
+    /// (from stops at different grades), and a window measured with the bias `b0` known
+    /// then is off by what the body's pitch in the window turns of the rest, `b - b0`:
+    /// the walk rotates it into the vertical by the body's dive or squat, `k (b - b0)`
+    /// deg for `k` the body's pitch per m/s^2 of force, and the reference tilts by
+    /// `(b - b0) / g`, which moves the grade's pull by `b - b0` and its pitch by `share k
+    /// (b - b0)`. Both are taken out of every entry as the fit reads it, so the windows
+    /// from before the bias was known count as if measured with the bias known now.
+    pub fn set_acc_bias_x(&mut self, bias_x_mps2: f64) {
+        if bias_x_mps2.is_finite() {
+            self.acc_bias_x_mps2 = bias_x_mps2;
         }
     }
 
@@ -191,11 +218,19 @@ impl Averager {
             return false;
         }
         self.sync_pulls();
-        let (Some(e), Some(p)) = (self.entries.last_mut(), self.pulls_mps2.last_mut()) else {
+        let b_now = self.acc_bias_x_mps2;
+        let (Some(e), Some(p), Some(b)) = (
+            self.entries.last_mut(),
+            self.pulls_mps2.last_mut(),
+            self.bias_x_mps2.last_mut(),
+        ) else {
             return false;
         };
         let w = e.1 + weight;
         *p = (*p * e.1 + pull_mps2 * weight) / w;
+        // Both measured with a bias (an entry without one takes the window's).
+        let b0 = b.unwrap_or(b_now);
+        *b = Some((b0 * e.1 + b_now * weight) / w);
         *e = ((e.0 * e.1 + value_deg * weight) / w, w);
         self.pair_bits |= 1;
         self.accepted = self.accepted.saturating_add(1);
@@ -210,20 +245,26 @@ impl Averager {
         if handle.0 != self.changes {
             return None;
         }
-        let grade_deg = self.grade_pitch_deg(self.pulls_mps2.last().copied().unwrap_or(0.0));
-        let (value_deg, _) = self.entries.pop()?;
+        let last = self.entries.len().checked_sub(1)?;
+        self.sync_pulls();
+        let (value_deg, _, z) = self.graded(last);
+        let grade_deg = self.share() * z;
+        self.entries.pop();
         self.pulls_mps2.truncate(self.entries.len());
+        self.bias_x_mps2.truncate(self.entries.len());
         self.pair_bits >>= 1;
         self.accepted = self.accepted.saturating_sub(1);
         self.changes = self.changes.wrapping_add(1);
         Some(value_deg - grade_deg)
     }
 
-    fn push_weighted(&mut self, value_deg: f64, w: f64, pull_mps2: f64) {
+    /// `bias_x_mps2`: the x bias the value was measured with (`None`: none to follow).
+    fn push_weighted(&mut self, value_deg: f64, w: f64, pull_mps2: f64, bias_x_mps2: Option<f64>) {
         self.sync_pulls();
         if self.entries.len() == self.capacity {
             self.entries.remove(0);
             self.pulls_mps2.remove(0);
+            self.bias_x_mps2.remove(0);
         }
         self.entries.push((value_deg, w));
         self.pulls_mps2.push(if pull_mps2.is_finite() {
@@ -231,13 +272,16 @@ impl Averager {
         } else {
             0.0
         });
+        self.bias_x_mps2.push(bias_x_mps2.filter(|b| b.is_finite()));
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits <<= 1;
     }
 
-    /// One pull per entry; a state written before pulls were kept has none (level).
+    /// One pull and bias per entry; a state written before they were kept has none
+    /// (level, no bias to follow).
     fn sync_pulls(&mut self) {
         self.pulls_mps2.resize(self.entries.len(), 0.0);
+        self.bias_x_mps2.resize(self.entries.len(), None);
     }
 
     /// Restart from a new load: the previous estimate shifted by `delta_deg` (known to
@@ -264,6 +308,7 @@ impl Averager {
         }
         self.entries.clear();
         self.pulls_mps2.clear();
+        self.bias_x_mps2.clear();
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits = 0;
         self.accepted = 0;
@@ -274,8 +319,10 @@ impl Averager {
                 .min(prior_weight)
                 .min(self.sigma_prior_deg.powi(2) / var);
             if w > 0.0 {
-                // The combined value is on level ground: no grade in it.
-                self.push_weighted(c.value_deg + delta_deg, w, 0.0);
+                // The combined value is on level ground: no grade in it; it was read
+                // with the bias known now.
+                let b = self.acc_bias_x_mps2;
+                self.push_weighted(c.value_deg + delta_deg, w, 0.0, Some(b));
             }
         }
     }
@@ -295,6 +342,7 @@ impl Averager {
         self.sync_pulls();
         self.entries.drain(..self.entries.len() - keep);
         self.pulls_mps2.drain(..self.pulls_mps2.len() - keep);
+        self.bias_x_mps2.drain(..self.bias_x_mps2.len() - keep);
         self.changes = self.changes.wrapping_add(1);
         for (i, e) in self.entries.iter_mut().rev().enumerate() {
             e.1 = if i < 64 && self.pair_bits >> i & 1 == 1 {
@@ -331,11 +379,24 @@ impl Averager {
         }
     }
 
-    /// Each entry as (value deg, weight, its pitch from the grade at share 1, deg).
+    /// Each entry as (value deg, weight, its pitch from the grade at share 1, deg), read
+    /// with the x bias known now (see [`Averager::set_acc_bias_x`]).
     fn graded(&self, i: usize) -> (f64, f64, f64) {
         let (v, w) = self.entries[i];
         let pull = self.pulls_mps2.get(i).copied().unwrap_or(0.0);
-        (v, w, self.per_force_deg * pull)
+        let db = self
+            .bias_x_mps2
+            .get(i)
+            .copied()
+            .flatten()
+            .map(|b| self.acc_bias_x_mps2 - b)
+            .filter(|d| d.is_finite())
+            .unwrap_or(0.0);
+        (
+            v + self.per_force_deg * db,
+            w,
+            self.per_force_deg * (pull - db),
+        )
     }
 
     /// The value and grade share that fit the entries under the weights `hw(residual,
@@ -540,6 +601,14 @@ impl Averager {
             f.weight
         };
         self.restore_prior(f.value_deg, weight, stored.accepted());
+        // The value was read with the bias the saved average knew: it follows the
+        // bias from there.
+        if stored.acc_bias_x_mps2.is_finite() {
+            self.acc_bias_x_mps2 = stored.acc_bias_x_mps2;
+            if let Some(b) = self.bias_x_mps2.last_mut() {
+                *b = Some(stored.acc_bias_x_mps2);
+            }
+        }
         let (ss, dof) = (stored.carried_ss + f.ss, stored.carried_dof + f.dof);
         if ss.is_finite() && ss >= 0.0 && dof.is_finite() && dof > 0.0 {
             let cap = (self.capacity as f64).min(dof);
@@ -567,15 +636,27 @@ impl Averager {
         if !self.per_force_deg.is_finite() {
             self.per_force_deg = 0.0;
         }
+        if !self.acc_bias_x_mps2.is_finite() {
+            self.acc_bias_x_mps2 = 0.0;
+        }
+        self.bias_x_mps2.truncate(self.entries.len());
+        for b in &mut self.bias_x_mps2 {
+            if b.is_some_and(|x| !(x.abs() <= MAX_BIAS_X_MPS2)) {
+                *b = None;
+            }
+        }
     }
 
     /// Seed with a restored value worth `weight` windows (`accepted` of them under this load).
     pub fn restore_prior(&mut self, value_deg: f64, weight: f64, accepted: u64) {
         self.entries.clear();
         self.pulls_mps2.clear();
+        self.bias_x_mps2.clear();
         self.carried_ss = 0.0;
         self.carried_dof = 0.0;
-        self.push_weighted(value_deg, weight, 0.0);
+        // A seed (end of line, a restored average) reads the bias its own way: nothing
+        // to follow unless the caller says (`restore_from`).
+        self.push_weighted(value_deg, weight, 0.0, None);
         self.pair_bits = 0;
         self.accepted = accepted;
     }
@@ -781,6 +862,49 @@ mod tests {
         assert!(a.merge_newest(h, 2.0, 1.0, 0.0));
         assert_eq!(a.withdraw_newest(h), None);
         assert_eq!(a.accepted(), 6);
+    }
+
+    /// Windows measured with an x bias that the stops later learnt better are read as
+    /// if measured with the new one: k per m/s^2 of it through the walk and as much
+    /// again (times the grade share) through the grade's pull; a window measured with
+    /// the new bias and a restart's prior, read with it, are not moved again.
+    #[test]
+    fn entries_measured_with_an_older_bias_follow_the_bias_known_now() {
+        let k = 0.25;
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        a.set_pitch_per_force(k);
+        for v in [1.0, 1.1, 0.9] {
+            a.push_on_grade(v, 1.0, 0.5);
+        }
+        let before = a.combined().unwrap().value_deg;
+        let share = a.share();
+        a.set_acc_bias_x(0.2);
+        let after = a.combined().unwrap().value_deg;
+        let expected = k * (1.0 + share) * 0.2;
+        assert!(
+            (after - before - expected).abs() < 1e-9,
+            "{before} -> {after}, expected a shift of {expected}"
+        );
+        // Measured with the bias known now: taken as it is.
+        let h = a.push_on_grade(2.0, 1.0, 0.5);
+        let share_now = a.share();
+        assert!((a.withdraw_newest(h).unwrap() - (2.0 - share_now * k * 0.5)).abs() < 1e-9);
+        assert!((a.combined().unwrap().value_deg - after).abs() < 1e-9);
+        // A load change keeps the estimate as a prior read with this bias; it follows
+        // the next change as the windows it came from would have.
+        a.restart_shifted(0.0, 0.0, 3.0);
+        let restarted = a.combined().unwrap().value_deg;
+        assert!((restarted - after).abs() < 1e-9);
+        a.set_acc_bias_x(0.3);
+        let moved = a.combined().unwrap().value_deg - restarted;
+        assert!(
+            (moved - k * (1.0 + a.share()) * 0.1).abs() < 1e-9,
+            "{moved}"
+        );
+        // Nothing to follow for an end-of-line seed.
+        a.restore_prior(1.5, 1.0, 0);
+        a.set_acc_bias_x(-0.3);
+        assert_eq!(a.combined().unwrap().value_deg, 1.5);
     }
 
     #[test]

@@ -171,6 +171,12 @@ pub struct EstimatorConfig {
     /// dives 0.3 deg per m/s^2 while braking turns a 0.3 m/s^2 bias into a vertical
     /// 1.6 mm/s^2 per m/s^2 of deceleration: about 0.09 deg on every window.
     pub correct_acc_bias: bool,
+    /// Read every window in the average with the bias the stops know now, not the one
+    /// known when it was measured (`Averager::set_acc_bias_x`): the stops learn the x
+    /// bias over many stops at different grades, and until then each window is off by
+    /// the body's pitch per m/s^2 of force (and as much again through its grade's
+    /// pull) times what is not yet known, the same in every window of a car.
+    pub rebias_windows: bool,
     /// How far the accelerometer's horizontal bias may be off zero before any stop has
     /// shown it (1 sigma), m/s^2: 0.2 for an untrimmed MEMS part (20-30 mg), a few
     /// hundredths for one trimmed at its maker (its data sheet's offset after
@@ -313,6 +319,7 @@ impl Default for EstimatorConfig {
             learn_lever_arm: true,
             learn_pitch_mode: true,
             correct_acc_bias: true,
+            rebias_windows: true,
             acc_bias_prior_mps2: 0.2,
             history_s: 30.0,
             load_change_deg: 0.2,

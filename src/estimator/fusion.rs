@@ -506,6 +506,11 @@ impl Estimator {
             return;
         }
         ctx.speed_mismatch = Some((imu_mps, wheel_mps));
+        // The car was moving where its "rest" taught the stop filter: what it taught goes.
+        if let Some(before) = ctx.stop_bias_before.take() {
+            self.stop_bias = before;
+            self.follow_stop_bias();
+        }
         if let Some(value_deg) = self
             .stop_window
             .take()

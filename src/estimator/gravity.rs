@@ -131,6 +131,14 @@ impl Estimator {
         }
     }
 
+    /// Tell the average the x bias the stops know now (`rebias_windows`).
+    pub(super) fn follow_stop_bias(&mut self) {
+        if self.cfg.rebias_windows {
+            self.avg.set_acc_bias_x(self.acc_bias_mps2().x);
+            self.refresh_estimate();
+        }
+    }
+
     /// Standard deviation of the accelerometer's x and y bias as the stops know them,
     /// m/s^2 (the prior before any settled stop).
     pub(super) fn acc_bias_sd_mps2(&self) -> [f64; 2] {

@@ -343,6 +343,9 @@ pub(super) struct ForwardCtx {
     /// speed; `Some` holds a mismatch (IMU, wheels, m/s).
     pub(super) speed_checked: bool,
     pub(super) speed_mismatch: Option<(f64, f64)>,
+    /// The stop filter as it was before this stop taught it (`Some` when it did): a
+    /// stop the speed check finds was none teaches no bias.
+    pub(super) stop_bias_before: Option<Option<super::gravity::GravityFilter>>,
 }
 
 impl Estimator {
@@ -1300,8 +1303,10 @@ impl Estimator {
         let n = self.hist.len();
         let floor = self.index_at(st.t_rest_s);
         let settled = st.seg_n >= self.min_settled();
+        let bias_before = self.stop_bias;
         if settled {
             self.update_stop_bias(t_now, &st.mean(), st.seg_n);
+            self.follow_stop_bias();
         }
         let g_mean = if settled { st.mean() } else { st.f_begin };
         // After the body turned at rest, it rests on the gravity of its new attitude.
@@ -1433,6 +1438,7 @@ impl Estimator {
             reference_settled: settled,
             speed_checked: false,
             speed_mismatch: None,
+            stop_bias_before: settled.then_some(bias_before),
         });
         for i in first..n - 1 {
             let step = self.fwd.push(&self.hist.get(i));
