@@ -600,10 +600,12 @@ impl Averager {
         } else {
             f.weight
         };
+        // The value was read with the bias the saved average knew: it follows the bias
+        // from there. An average saved before entries kept their bias has none (its
+        // bias field reads 0, which it was not read with): nothing to follow.
+        let followed = stored.bias_x_mps2.iter().any(Option::is_some);
         self.restore_prior(f.value_deg, weight, stored.accepted());
-        // The value was read with the bias the saved average knew: it follows the
-        // bias from there.
-        if stored.acc_bias_x_mps2.is_finite() {
+        if followed {
             self.acc_bias_x_mps2 = stored.acc_bias_x_mps2;
             if let Some(b) = self.bias_x_mps2.last_mut() {
                 *b = Some(stored.acc_bias_x_mps2);
@@ -636,7 +638,7 @@ impl Averager {
         if !self.per_force_deg.is_finite() {
             self.per_force_deg = 0.0;
         }
-        if !self.acc_bias_x_mps2.is_finite() {
+        if !(self.acc_bias_x_mps2.abs() <= MAX_BIAS_X_MPS2) {
             self.acc_bias_x_mps2 = 0.0;
         }
         self.bias_x_mps2.truncate(self.entries.len());
@@ -1026,6 +1028,49 @@ mod tests {
         assert!((old.combined().unwrap().value_deg - 0.5).abs() < 1e-9);
         old.push_on_grade(0.5, 1.0, 1.0);
         assert!(old.combined().unwrap().value_deg.is_finite());
+    }
+
+    /// A saved average comes back read with the bias it knew and follows the stops'
+    /// bias from there; one saved before entries kept their bias follows nothing.
+    #[test]
+    fn a_restored_average_follows_the_bias_from_the_one_it_was_read_with() {
+        let k = 0.25;
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        a.set_pitch_per_force(k);
+        a.set_acc_bias_x(0.1);
+        for v in [1.0, 1.2] {
+            a.push_on_grade(v, 1.0, 0.0);
+        }
+        a.set_acc_bias_x(0.2);
+        let saved = a.combined().unwrap().value_deg;
+        let json = serde_json::to_value(&a).unwrap();
+        for (old_format, follows) in [(false, true), (true, false)] {
+            let mut json = json.clone();
+            if old_format {
+                let obj = json.as_object_mut().unwrap();
+                for key in ["bias_x_mps2", "acc_bias_x_mps2"] {
+                    assert!(obj.remove(key).is_some(), "{key}");
+                }
+            }
+            let mut stored: Averager = serde_json::from_value(json).unwrap();
+            let mut restored = Averager::new(Averaging::Mean, 64, 0.2);
+            restored.restore_from(&mut stored);
+            // The old format reads its entries as they were measured.
+            let kept = if follows { saved } else { 1.1 };
+            let back = restored.combined().unwrap().value_deg;
+            assert!((back - kept).abs() < 1e-9, "{back} for {kept}");
+            restored.set_acc_bias_x(0.3);
+            let moved = restored.combined().unwrap().value_deg - back;
+            let expected = if follows {
+                k * (1.0 + restored.share()) * 0.1
+            } else {
+                0.0
+            };
+            assert!(
+                (moved - expected).abs() < 1e-9,
+                "{moved}, expected {expected}"
+            );
+        }
     }
 
     #[test]

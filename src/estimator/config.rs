@@ -175,7 +175,8 @@ pub struct EstimatorConfig {
     /// known when it was measured (`Averager::set_acc_bias_x`): the stops learn the x
     /// bias over many stops at different grades, and until then each window is off by
     /// the body's pitch per m/s^2 of force (and as much again through its grade's
-    /// pull) times what is not yet known, the same in every window of a car.
+    /// pull) times what is not yet known, the same in every window of a car. It uses
+    /// the pitch per m/s^2 learnt from braking (`correct_grade_pitch`).
     pub rebias_windows: bool,
     /// How far the accelerometer's horizontal bias may be off zero before any stop has
     /// shown it (1 sigma), m/s^2: 0.2 for an untrimmed MEMS part (20-30 mg), a few
