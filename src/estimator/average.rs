@@ -638,12 +638,15 @@ impl Averager {
         if !self.per_force_deg.is_finite() {
             self.per_force_deg = 0.0;
         }
-        if !(self.acc_bias_x_mps2.abs() <= MAX_BIAS_X_MPS2) {
+        // Entries cannot be read against a bias that is not an accelerometer's: they
+        // are read as measured, and one with such a bias of its own alike.
+        let now_ok = self.acc_bias_x_mps2.abs() <= MAX_BIAS_X_MPS2;
+        if !now_ok {
             self.acc_bias_x_mps2 = 0.0;
         }
         self.bias_x_mps2.truncate(self.entries.len());
         for b in &mut self.bias_x_mps2 {
-            if b.is_some_and(|x| !(x.abs() <= MAX_BIAS_X_MPS2)) {
+            if !now_ok || b.is_some_and(|x| !(x.abs() <= MAX_BIAS_X_MPS2)) {
                 *b = None;
             }
         }
@@ -1105,6 +1108,9 @@ mod tests {
         json["share_prior"] = serde_json::json!({"mean": 1e9, "precision": -5.0});
         json["carried_ss"] = serde_json::json!(-1.0);
         json["carried_dof"] = serde_json::json!(3.0);
+        // A bias no accelerometer has, now and on an entry: read as measured.
+        json["acc_bias_x_mps2"] = serde_json::json!(1e9);
+        json["bias_x_mps2"][0] = serde_json::json!(-1e9);
         let mut stored: Averager = serde_json::from_value(json).unwrap();
         let mut restored = Averager::new(Averaging::Huber, 64, 0.2);
         restored.restore_from(&mut stored);
@@ -1117,5 +1123,7 @@ mod tests {
         assert!(c.std_err_deg.is_finite(), "{c:?}");
         assert!((restored.share() - a.share()).abs() < 1e-6);
         assert!(restored.carried_ss >= 0.0, "{}", restored.carried_ss);
+        restored.set_acc_bias_x(0.3);
+        assert_eq!(restored.combined().unwrap().value_deg, c.value_deg);
     }
 }
