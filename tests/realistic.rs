@@ -680,7 +680,8 @@ fn a_rolling_stop_taken_for_rest_has_its_window_withdrawn_at_the_first_wheel_spe
                 }
                 Event::WindowWithdrawn { estimate, .. }
                 | Event::LoadChanged { estimate, .. }
-                | Event::PitchShifted { estimate, .. } => {
+                | Event::PitchShifted { estimate, .. }
+                | Event::WindowsRebiased { estimate, .. } => {
                     current = estimate.map(|e| e.road_to_body_deg)
                 }
                 _ => {}

@@ -342,6 +342,15 @@ fn log_event(e: &Event) {
                 "windows in a row disagree with the estimate; restarted from them"
             )
         }
+        Event::WindowsRebiased {
+            acc_bias_x_mps2,
+            delta_deg,
+            ..
+        } => tracing::debug!(
+            acc_bias_x_mps2,
+            delta_deg,
+            "windows read with the accelerometer bias the stops learnt"
+        ),
         Event::WindowWithdrawn {
             road_to_body_deg,
             imu_mps,

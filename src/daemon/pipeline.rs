@@ -477,7 +477,9 @@ impl Pipeline {
                     self.counters.windows_withdrawn += 1;
                     changed = true;
                 }
-                Event::LoadChanged { .. } | Event::PitchShifted { .. } => changed = true,
+                Event::LoadChanged { .. }
+                | Event::PitchShifted { .. }
+                | Event::WindowsRebiased { .. } => changed = true,
                 Event::StandstillStarted { .. } => self.counters.standstills += 1,
                 _ => {}
             }

@@ -304,6 +304,16 @@ fn write_text(out: &mut dyn Write, e: &Event) -> std::io::Result<()> {
             "{t_s:12.3}  pitch shift       {delta_deg:+.3} deg (windows in a row) -> estimate {}",
             estimate.map_or("none".into(), |e| format!("{:+.3} deg", e.road_to_body_deg))
         ),
+        Event::WindowsRebiased {
+            t_s,
+            acc_bias_x_mps2,
+            delta_deg,
+            estimate,
+        } => writeln!(
+            out,
+            "{t_s:12.3}  windows rebiased  accelerometer x bias {acc_bias_x_mps2:+.4} m/s^2: {delta_deg:+.3} deg -> estimate {}",
+            estimate.map_or("none".into(), |e| format!("{:+.3} deg", e.road_to_body_deg))
+        ),
         Event::WindowWithdrawn {
             t_s,
             road_to_body_deg,

@@ -102,6 +102,15 @@ pub enum Event {
         delta_deg: f64,
         estimate: Option<Estimate>,
     },
+    /// The stops' estimate of the accelerometer's x bias changed, and every window in
+    /// the average is now read with it (`rebias_windows`): the estimate moved by
+    /// `delta_deg` without a window of its own.
+    WindowsRebiased {
+        t_s: f64,
+        acc_bias_x_mps2: f64,
+        delta_deg: f64,
+        estimate: Option<Estimate>,
+    },
     /// The first wheel speed after a drive-off disagreed with the speed the IMU
     /// integrated from the standstill: the car never was at rest (a rolling stop under
     /// the wheel sensors' dead zone) or the reference was wrong. The deceleration

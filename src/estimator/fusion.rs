@@ -509,7 +509,7 @@ impl Estimator {
         // The car was moving where its "rest" taught the stop filter: what it taught goes.
         if let Some(before) = ctx.stop_bias_before.take() {
             self.stop_bias = before;
-            self.follow_stop_bias();
+            self.follow_stop_bias(t_s, emit);
         }
         if let Some(value_deg) = self
             .stop_window

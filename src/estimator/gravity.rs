@@ -1,8 +1,8 @@
 //! The settled gravity magnitude (the g of eq. 12-13) and pitch from a specific force.
 
-use super::Estimator;
 use super::attitude;
 use super::vibration;
+use super::{Estimator, Event};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 impl Estimator {
@@ -131,11 +131,25 @@ impl Estimator {
         }
     }
 
-    /// Tell the average the x bias the stops know now (`rebias_windows`).
-    pub(super) fn follow_stop_bias(&mut self) {
-        if self.cfg.rebias_windows {
-            self.avg.set_acc_bias_x(self.acc_bias_mps2().x);
-            self.refresh_estimate();
+    /// Tell the average the x bias the stops know now (`rebias_windows`), and say so
+    /// when that moved the estimate.
+    pub(super) fn follow_stop_bias(&mut self, t_s: f64, emit: &mut dyn FnMut(Event)) {
+        if !self.cfg.rebias_windows {
+            return;
+        }
+        let before = self.estimate.map(|e| e.road_to_body_deg);
+        let b = self.acc_bias_mps2().x;
+        self.avg.set_acc_bias_x(b);
+        self.refresh_estimate();
+        if let (Some(before), Some(e)) = (before, self.estimate)
+            && e.road_to_body_deg != before
+        {
+            emit(Event::WindowsRebiased {
+                t_s,
+                acc_bias_x_mps2: b,
+                delta_deg: e.road_to_body_deg - before,
+                estimate: self.estimate,
+            });
         }
     }
 

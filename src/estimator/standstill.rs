@@ -1306,7 +1306,7 @@ impl Estimator {
         let bias_before = self.stop_bias;
         if settled {
             self.update_stop_bias(t_now, &st.mean(), st.seg_n);
-            self.follow_stop_bias();
+            self.follow_stop_bias(t_now, emit);
         }
         let g_mean = if settled { st.mean() } else { st.f_begin };
         // After the body turned at rest, it rests on the gravity of its new attitude.
