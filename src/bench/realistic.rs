@@ -54,6 +54,9 @@ pub struct RealisticSpec {
     pub pitch_freq_hz: [f64; 2],
     pub pitch_damping: [f64; 2],
     pub pitch_per_accel_deg: [f64; 2],
+    /// Squat per m/s^2 of forward force as a share of the dive per m/s^2 of braking
+    /// (see `Vehicle::squat_share`).
+    pub squat_share: [f64; 2],
     /// The body also pitches with gravity's share along a grade (see
     /// `Vehicle::pitch_from_grade`).
     pub pitch_from_grade: bool,
@@ -112,6 +115,7 @@ impl Default for RealisticSpec {
             pitch_freq_hz: [1.2, 1.4],
             pitch_damping: [0.2, 0.4],
             pitch_per_accel_deg: [0.15, 0.3],
+            squat_share: [1.0, 1.0],
             pitch_from_grade: true,
             load_through_suspension: false,
             lever_arm_m: [2.1, 0.65, 0.4],
@@ -176,6 +180,13 @@ impl RealisticSpec {
             20.0,
             "give [min, max] above 0 Hz; a car body heaves at 1-1.5 Hz",
         )?;
+        let [lo, hi] = self.squat_share;
+        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= 2.0) {
+            anyhow::bail!(
+                "realistic.squat_share = [{lo}, {hi}]: give [min, max] within 0..2; a car \
+                 squats by 0.3-1 of what it dives per m/s^2"
+            );
+        }
         let [lo, hi] = self.heave_per_accel_mm;
         if !(lo.is_finite() && hi.is_finite() && -20.0 <= lo && lo <= hi && hi <= 20.0) {
             anyhow::bail!(
@@ -383,6 +394,11 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         heave_freq_hz: pick(&mut gr, r.heave_freq_hz),
         heave_damping: pick(&mut gr, r.heave_damping),
         // Drawn only when it varies, so that the drives without it stay as they were.
+        squat_share: if r.squat_share[0] == r.squat_share[1] {
+            r.squat_share[0]
+        } else {
+            pick(&mut gr, r.squat_share)
+        },
         heave_per_accel_mm: if r.heave_per_accel_mm[0] == r.heave_per_accel_mm[1] {
             r.heave_per_accel_mm[0]
         } else {

@@ -6,7 +6,7 @@
 //! differences on the sub-grid.
 
 use super::noise::Gauss;
-use super::scenario::Scenario;
+use super::scenario::{Scenario, Vehicle};
 use crate::estimator::{ImuSample, WheelSpeeds};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
@@ -188,7 +188,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
     } else {
         0.0
     };
-    let beta0 = veh.pitch_per_accel_deg.to_radians() * force0;
+    let beta0 = body_pitch_rad(veh, force0, false);
     let (mut beta, mut beta_dot) = (beta0, 0.0f64);
     // The load's pitch as the body takes it (rad, rad/s).
     let (mut load_body, mut load_body_dot) = (sc.load_pitch_deg_at(0.0).to_radians(), 0.0f64);
@@ -427,7 +427,10 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let v_next = (v + a_step * h).max(0.0);
         s += 0.5 * (v + v_next) * h;
         v = v_next;
-        let target = veh.pitch_per_accel_deg.to_radians() * force_long;
+        // The drivetrain pushes while the car pulls away or drives on; at rest the
+        // brakes hold it, through the geometry that they brake with.
+        let driven = a_long > 0.0 || v > 0.0;
+        let target = body_pitch_rad(veh, force_long, driven);
         let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
         beta_dot += beta_dd * h;
         beta += beta_dot * h;
@@ -441,6 +444,18 @@ pub fn simulate(sc: &Scenario) -> Drive {
         zf += zf_dot * h;
     }
     Drive { imu, wheels, truth }
+}
+
+/// The body's steady pitch under a longitudinal force per unit mass, rad: it dives
+/// under braking and squats by `squat_share` of that under a forward force that the
+/// drivetrain gives (`driven`); held by its brakes on a grade, it pitches as it brakes.
+fn body_pitch_rad(veh: &Vehicle, force_mps2: f64, driven: bool) -> f64 {
+    let share = if driven && force_mps2 > 0.0 {
+        veh.squat_share
+    } else {
+        1.0
+    };
+    veh.pitch_per_accel_deg.to_radians() * share * force_mps2
 }
 
 fn wheel_speeds(
@@ -549,6 +564,56 @@ mod tests {
         assert!((rest_pitch(-10.0, true) + 0.244).abs() < 0.005);
         assert!(rest_pitch(10.0, false).abs() < 1e-6);
         assert!(rest_pitch(0.0, true).abs() < 1e-6);
+        // A body that squats half as much as it dives stands on a grade as it brakes:
+        // its brakes hold it.
+        let half = |grade_pct: f64| {
+            let vehicle = Vehicle {
+                pitch_per_accel_deg: 0.25,
+                squat_share: 0.5,
+                ..Vehicle::default()
+            };
+            let road = Road::constant(grade_pct.atan2(100.0).to_degrees());
+            at_rest(6.0, road, vehicle).truth_at(5.0).suspension_deg
+        };
+        assert!((half(10.0) - 0.244).abs() < 0.005);
+        assert!((half(-10.0) + 0.244).abs() < 0.005);
+    }
+
+    /// Pulling away the body squats by `squat_share` of what it dives braking.
+    #[test]
+    fn a_body_squats_by_its_share_of_the_dive_when_the_drivetrain_pushes() {
+        use crate::sim::scenario::{Road, Vehicle};
+        let pitch = |squat_share: f64| {
+            let vehicle = Vehicle {
+                pitch_per_accel_deg: 0.25,
+                squat_share,
+                ..Vehicle::default()
+            };
+            let d = super::simulate(&crate::sim::scenario::Scenario {
+                speed: SpeedProfile::default()
+                    .hold(1.0)
+                    .accel(1.0, 6.0)
+                    .accel(-1.0, 6.0)
+                    .hold(1.0),
+                road: Road::constant(0.0),
+                load_pitch_deg: 0.0,
+                load_changes: Vec::new(),
+                vehicle,
+                sensors: crate::sim::scenario::Sensors::ideal(),
+                shocks: Vec::new(),
+                imu_gaps: Vec::new(),
+                seed: 1,
+            });
+            (
+                d.truth_at(6.5).suspension_deg,
+                d.truth_at(12.5).suspension_deg,
+            )
+        };
+        let (squat, dive) = pitch(0.5);
+        assert!((squat - 0.125).abs() < 0.005, "{squat}");
+        assert!((dive + 0.25).abs() < 0.005, "{dive}");
+        let (squat, _) = pitch(1.0);
+        assert!((squat - 0.25).abs() < 0.005, "{squat}");
     }
 
     #[test]

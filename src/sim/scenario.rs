@@ -190,6 +190,12 @@ pub struct Vehicle {
     pub lever_arm_m: [f64; 3],
     /// Steady body pitch per longitudinal acceleration, deg per m/s^2 (nose-up when accelerating).
     pub pitch_per_accel_deg: f64,
+    /// The body's pitch per m/s^2 of forward force from the drivetrain (pulling away,
+    /// driving uphill) as a share of its dive per m/s^2 of braking. Anti-squat and
+    /// anti-dive geometry differ, and a driven axle reacts its torque otherwise than
+    /// the brakes on both axles do, so a car squats less or more than it dives (1:
+    /// alike). Held by its brakes at rest on a grade, it pitches as it brakes.
+    pub squat_share: f64,
     /// The body pitches with the whole longitudinal force the tyres pass to it, which on
     /// a grade holds gravity's share along the road: a car at rest facing uphill squats
     /// as if pulling away at g sin(grade). Off, only the acceleration pitches it.
@@ -240,6 +246,7 @@ impl Default for Vehicle {
         Self {
             lever_arm_m: [2.0, 0.0, 0.3],
             pitch_per_accel_deg: 0.3,
+            squat_share: 1.0,
             pitch_from_grade: true,
             load_through_suspension: false,
             pitch_freq_hz: 1.5,
