@@ -154,7 +154,7 @@ fn simulated_drive_leveling_output_matches_truth_once_valid() {
     }
     assert!(s.estimates_accepted >= 10, "{s:?}");
     // The summary says what was learnt of the suspension: this body's dive per m/s^2
-    // of braking, to within a tenth.
+    // of braking and its squat pulling away (alike here), to within a tenth.
     let vehicle = leveld::sim::presets::preset("multi-stop", 7)
         .unwrap()
         .vehicle;
@@ -163,6 +163,10 @@ fn simulated_drive_leveling_output_matches_truth_once_valid() {
     eprintln!("{susp:?} for {vehicle:?}");
     assert!(
         (susp.pitch_per_braking_deg_per_mps2 - sim_k).abs() < 0.1 * sim_k,
+        "{susp:?} for a body of {sim_k} deg per m/s^2"
+    );
+    assert!(
+        (susp.pitch_per_drive_deg_per_mps2 - sim_k).abs() < 0.1 * sim_k,
         "{susp:?} for a body of {sim_k} deg per m/s^2"
     );
     // And the body's pitch mode from its swing after the stops.

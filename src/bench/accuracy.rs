@@ -147,6 +147,14 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         rebias_windows: false,
         ..d()
     };
+    let mean_dive_rebias = EstimatorConfig {
+        rebias_by_walk: false,
+        ..d()
+    };
+    let squat_as_dive = EstimatorConfig {
+        learn_squat: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -214,6 +222,8 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(no_mode, "no-pitch-mode")),
         Box::new(Leveld::new(fixed_weights, "weights-at-300-ug")),
         Box::new(Leveld::new(keep_bias, "windows-keep-their-bias")),
+        Box::new(Leveld::new(mean_dive_rebias, "rebias-by-mean-dive")),
+        Box::new(Leveld::new(squat_as_dive, "squat-as-dive")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]

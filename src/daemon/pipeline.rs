@@ -24,6 +24,10 @@ const MAX_CATCH_UP_FRAMES: u32 = 11;
 pub struct Suspension {
     /// Body pitch per m/s^2 of braking, deg (0 until a brisk stop teaches it).
     pub pitch_per_braking_deg_per_mps2: f64,
+    /// Body pitch per m/s^2 of pulling away, deg (the braking one until drive-offs
+    /// teach it).
+    #[serde(default)]
+    pub pitch_per_drive_deg_per_mps2: f64,
     /// Share of that pitch the body shows standing on a grade (1 until stops at
     /// different grades tell).
     pub grade_share: f64,
@@ -39,8 +43,11 @@ impl std::fmt::Display for Suspension {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "body pitch {:.3} deg per m/s^2 of braking, {:.2} of it standing on a grade",
-            self.pitch_per_braking_deg_per_mps2, self.grade_share
+            "body pitch {:.3} deg per m/s^2 of braking and {:.3} pulling away, {:.2} of the \
+             braking one standing on a grade",
+            self.pitch_per_braking_deg_per_mps2,
+            self.pitch_per_drive_deg_per_mps2,
+            self.grade_share
         )?;
         match (self.pitch_mode_hz, self.pitch_mode_damping) {
             (Some(hz), Some(z)) => write!(f, "; pitch mode {hz:.2} Hz, damping {z:.2}"),
@@ -282,11 +289,13 @@ impl Pipeline {
     }
 
     /// What the estimator learnt of the suspension: the body's pitch per m/s^2 of
-    /// braking, deg, and the share of it the body shows standing on a grade.
+    /// braking and of pulling away, deg, and the share of the braking one the body
+    /// shows standing on a grade.
     pub fn suspension(&self) -> Suspension {
         let mode = self.est.pitch_mode();
         Suspension {
             pitch_per_braking_deg_per_mps2: self.est.pitch_per_force_deg(),
+            pitch_per_drive_deg_per_mps2: self.est.squat_per_force_deg(),
             grade_share: self.est.grade_share(),
             pitch_mode_hz: mode.map(|m| m.freq_hz()),
             pitch_mode_damping: mode.map(|m| m.damping_ratio()),

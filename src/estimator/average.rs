@@ -28,6 +28,10 @@ pub struct Averager {
     /// The x bias the stops know now, m/s^2: every entry is read as if measured with it.
     #[serde(default)]
     acc_bias_x_mps2: f64,
+    /// Per entry, how far its value moves per m/s^2 of x bias, from its windows' own
+    /// walks, deg (`None`: `per_force_deg`, the body's mean dive per m/s^2, stands in).
+    #[serde(default)]
+    walk_per_bias_deg: Vec<Option<f64>>,
     /// What the windows of earlier loads (or a saved state) showed of the grade share,
     /// the prior of the current fit (see `GradeShare`).
     #[serde(default)]
@@ -101,6 +105,9 @@ const SHARE_PRIOR_SD: f64 = 0.5;
 const SHARE_RANGE: (f64, f64) = (0.0, 1.5);
 /// A saved entry's bias beyond this is not an accelerometer's (5 m/s^2: half a g).
 const MAX_BIAS_X_MPS2: f64 = 5.0;
+/// A window's walk answer to the x bias beyond this is not a window's (10 deg per
+/// m/s^2: a 3 deg turn from rest in a walk at 0.3 m/s^2).
+const MAX_WALK_PER_BIAS_DEG: f64 = 10.0;
 
 impl Default for GradeShare {
     fn default() -> Self {
@@ -134,6 +141,7 @@ impl Averager {
             per_force_deg: 0.0,
             bias_x_mps2: Vec::with_capacity(capacity),
             acc_bias_x_mps2: 0.0,
+            walk_per_bias_deg: Vec::with_capacity(capacity),
             share_prior: GradeShare::default(),
             accepted: 0,
             carried_ss: 0.0,
@@ -156,15 +164,23 @@ impl Averager {
     /// Add one window value (deg) with a weight relative to a typical window (its
     /// inverse predicted variance against that of a typical window).
     pub fn push_window(&mut self, value_deg: f64, weight: f64) -> PairHandle {
-        self.push_on_grade(value_deg, weight, 0.0)
+        self.push_on_grade(value_deg, weight, 0.0, None)
     }
 
     /// `push_window` for a window measured against a reference at rest on a grade that
     /// pulls `pull_mps2` (g sin(slope)) along the road: its value still holds the
     /// body's pitch on that grade, which the fit takes out (see [`GradeShare`]).
-    pub fn push_on_grade(&mut self, value_deg: f64, weight: f64, pull_mps2: f64) -> PairHandle {
+    /// `walk_per_bias_deg`: how far the window's value moves per m/s^2 of x bias
+    /// through its walk (`None`: as far as the body's mean dive per m/s^2).
+    pub fn push_on_grade(
+        &mut self,
+        value_deg: f64,
+        weight: f64,
+        pull_mps2: f64,
+        walk_per_bias_deg: Option<f64>,
+    ) -> PairHandle {
         let b = self.acc_bias_x_mps2;
-        self.push_weighted(value_deg, weight, pull_mps2, Some(b));
+        self.push_weighted(value_deg, weight, pull_mps2, Some(b), walk_per_bias_deg);
         self.accepted = self.accepted.saturating_add(1);
         PairHandle(self.changes)
     }
@@ -181,7 +197,9 @@ impl Averager {
     /// (from stops at different grades), and a window measured with the bias `b0` known
     /// then is off by what the body's pitch in the window turns of the rest, `b - b0`:
     /// the walk rotates it into the vertical by the body's dive or squat, `k (b - b0)`
-    /// deg for `k` the body's pitch per m/s^2 of force, and the reference tilts by
+    /// deg for `k` what the window's own walk says (the gyro's turn from rest, weighed
+    /// as its slope weighs the path), else the body's mean pitch per m/s^2 of force;
+    /// and the reference tilts by
     /// `(b - b0) / g`, which moves the grade's pull by `b - b0` and its pitch by `share k
     /// (b - b0)`. Both are taken out of every entry as the fit reads it, so the windows
     /// from before the bias was known count as if measured with the bias known now.
@@ -213,16 +231,19 @@ impl Averager {
         value_deg: f64,
         weight: f64,
         pull_mps2: f64,
+        walk_per_bias_deg: Option<f64>,
     ) -> bool {
         if handle.0 != self.changes {
             return false;
         }
         self.sync_pulls();
         let b_now = self.acc_bias_x_mps2;
-        let (Some(e), Some(p), Some(b)) = (
+        let k = self.per_force_deg;
+        let (Some(e), Some(p), Some(b), Some(s)) = (
             self.entries.last_mut(),
             self.pulls_mps2.last_mut(),
             self.bias_x_mps2.last_mut(),
+            self.walk_per_bias_deg.last_mut(),
         ) else {
             return false;
         };
@@ -231,6 +252,10 @@ impl Averager {
         // Both measured with a bias (an entry without one takes the window's).
         let b0 = b.unwrap_or(b_now);
         *b = Some((b0 * e.1 + b_now * weight) / w);
+        if s.is_some() || walk_per_bias_deg.is_some() {
+            let (s0, s1) = (s.unwrap_or(k), walk_per_bias_deg.unwrap_or(k));
+            *s = Some((s0 * e.1 + s1 * weight) / w);
+        }
         *e = ((e.0 * e.1 + value_deg * weight) / w, w);
         self.pair_bits |= 1;
         self.accepted = self.accepted.saturating_add(1);
@@ -252,19 +277,29 @@ impl Averager {
         self.entries.pop();
         self.pulls_mps2.truncate(self.entries.len());
         self.bias_x_mps2.truncate(self.entries.len());
+        self.walk_per_bias_deg.truncate(self.entries.len());
         self.pair_bits >>= 1;
         self.accepted = self.accepted.saturating_sub(1);
         self.changes = self.changes.wrapping_add(1);
         Some(value_deg - grade_deg)
     }
 
-    /// `bias_x_mps2`: the x bias the value was measured with (`None`: none to follow).
-    fn push_weighted(&mut self, value_deg: f64, w: f64, pull_mps2: f64, bias_x_mps2: Option<f64>) {
+    /// `bias_x_mps2`: the x bias the value was measured with (`None`: none to follow);
+    /// `walk_per_bias_deg`: see [`Averager::push_on_grade`].
+    fn push_weighted(
+        &mut self,
+        value_deg: f64,
+        w: f64,
+        pull_mps2: f64,
+        bias_x_mps2: Option<f64>,
+        walk_per_bias_deg: Option<f64>,
+    ) {
         self.sync_pulls();
         if self.entries.len() == self.capacity {
             self.entries.remove(0);
             self.pulls_mps2.remove(0);
             self.bias_x_mps2.remove(0);
+            self.walk_per_bias_deg.remove(0);
         }
         self.entries.push((value_deg, w));
         self.pulls_mps2.push(if pull_mps2.is_finite() {
@@ -273,6 +308,8 @@ impl Averager {
             0.0
         });
         self.bias_x_mps2.push(bias_x_mps2.filter(|b| b.is_finite()));
+        self.walk_per_bias_deg
+            .push(walk_per_bias_deg.filter(|s| s.abs() <= MAX_WALK_PER_BIAS_DEG));
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits <<= 1;
     }
@@ -282,6 +319,28 @@ impl Averager {
     fn sync_pulls(&mut self) {
         self.pulls_mps2.resize(self.entries.len(), 0.0);
         self.bias_x_mps2.resize(self.entries.len(), None);
+        self.walk_per_bias_deg.resize(self.entries.len(), None);
+    }
+
+    /// The entries' walk answer to the x bias, weighted as they count, deg per m/s^2:
+    /// what a value combined from them moves by (`None` without entries).
+    fn mean_walk_per_bias_deg(&self) -> Option<f64> {
+        let (mut sw, mut w) = (0.0, 0.0);
+        for (i, e) in self.entries.iter().enumerate() {
+            let s = self.walk_per_bias(i);
+            sw += e.1 * s;
+            w += e.1;
+        }
+        (w > 0.0 && sw.is_finite()).then(|| sw / w)
+    }
+
+    /// See `walk_per_bias_deg`.
+    fn walk_per_bias(&self, i: usize) -> f64 {
+        self.walk_per_bias_deg
+            .get(i)
+            .copied()
+            .flatten()
+            .unwrap_or(self.per_force_deg)
     }
 
     /// Restart from a new load: the previous estimate shifted by `delta_deg` (known to
@@ -291,6 +350,7 @@ impl Averager {
     pub fn restart_shifted(&mut self, delta_deg: f64, delta_sd_deg: f64, prior_weight: f64) {
         let fit = self.fit();
         let prior = fit.as_ref().map(Fit::combined);
+        let walk = self.mean_walk_per_bias_deg();
         if let Some(f) = fit {
             // The new load stands on the same suspension: what the windows showed of
             // the grade share holds.
@@ -309,6 +369,7 @@ impl Averager {
         self.entries.clear();
         self.pulls_mps2.clear();
         self.bias_x_mps2.clear();
+        self.walk_per_bias_deg.clear();
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits = 0;
         self.accepted = 0;
@@ -322,7 +383,7 @@ impl Averager {
                 // The combined value is on level ground: no grade in it; it was read
                 // with the bias known now.
                 let b = self.acc_bias_x_mps2;
-                self.push_weighted(c.value_deg + delta_deg, w, 0.0, Some(b));
+                self.push_weighted(c.value_deg + delta_deg, w, 0.0, Some(b), walk);
             }
         }
     }
@@ -343,6 +404,8 @@ impl Averager {
         self.entries.drain(..self.entries.len() - keep);
         self.pulls_mps2.drain(..self.pulls_mps2.len() - keep);
         self.bias_x_mps2.drain(..self.bias_x_mps2.len() - keep);
+        self.walk_per_bias_deg
+            .drain(..self.walk_per_bias_deg.len() - keep);
         self.changes = self.changes.wrapping_add(1);
         for (i, e) in self.entries.iter_mut().rev().enumerate() {
             e.1 = if i < 64 && self.pair_bits >> i & 1 == 1 {
@@ -393,7 +456,7 @@ impl Averager {
             .filter(|d| d.is_finite())
             .unwrap_or(0.0);
         (
-            v + self.per_force_deg * db,
+            v + self.walk_per_bias(i) * db,
             w,
             self.per_force_deg * (pull - db),
         )
@@ -604,11 +667,15 @@ impl Averager {
         // from there. An average saved before entries kept their bias has none (its
         // bias field reads 0, which it was not read with): nothing to follow.
         let followed = stored.bias_x_mps2.iter().any(Option::is_some);
+        let walk = stored.mean_walk_per_bias_deg();
         self.restore_prior(f.value_deg, weight, stored.accepted());
         if followed {
             self.acc_bias_x_mps2 = stored.acc_bias_x_mps2;
             if let Some(b) = self.bias_x_mps2.last_mut() {
                 *b = Some(stored.acc_bias_x_mps2);
+            }
+            if let Some(s) = self.walk_per_bias_deg.last_mut() {
+                *s = walk;
             }
         }
         let (ss, dof) = (stored.carried_ss + f.ss, stored.carried_dof + f.dof);
@@ -650,6 +717,12 @@ impl Averager {
                 *b = None;
             }
         }
+        self.walk_per_bias_deg.truncate(self.entries.len());
+        for s in &mut self.walk_per_bias_deg {
+            if s.is_some_and(|x| !(x.abs() <= MAX_WALK_PER_BIAS_DEG)) {
+                *s = None;
+            }
+        }
     }
 
     /// Seed with a restored value worth `weight` windows (`accepted` of them under this load).
@@ -657,11 +730,12 @@ impl Averager {
         self.entries.clear();
         self.pulls_mps2.clear();
         self.bias_x_mps2.clear();
+        self.walk_per_bias_deg.clear();
         self.carried_ss = 0.0;
         self.carried_dof = 0.0;
         // A seed (end of line, a restored average) reads the bias its own way: nothing
         // to follow unless the caller says (`restore_from`).
-        self.push_weighted(value_deg, weight, 0.0, None);
+        self.push_weighted(value_deg, weight, 0.0, None, None);
         self.pair_bits = 0;
         self.accepted = accepted;
     }
@@ -832,19 +906,19 @@ mod tests {
         let mut a = Averager::new(Averaging::Mean, 64, 0.2);
         a.push(1.0);
         let h = a.push_window(0.4, 1.0);
-        assert!(a.merge_newest(h, 0.0, 0.25, 0.0));
+        assert!(a.merge_newest(h, 0.0, 0.25, 0.0, None));
         let c = a.combined().unwrap();
         assert!((c.weight - 2.25).abs() < 1e-12);
         assert!((c.value_deg - (1.0 + 0.4 + 0.0 * 0.25) / 2.25).abs() < 1e-12);
         assert_eq!(a.accepted(), 3);
         // Used once, and never after another window or a restart.
-        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0));
+        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None));
         let h = a.push_window(0.5, 1.0);
         a.push(0.6);
-        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0));
+        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None));
         let h = a.push_window(0.5, 1.0);
         a.restart_shifted(0.3, 0.05, 4.0);
-        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0));
+        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None));
         assert_eq!(a.accepted(), 0);
     }
 
@@ -864,7 +938,7 @@ mod tests {
         a.push(0.9);
         assert_eq!(a.withdraw_newest(h), None);
         let h = a.push_window(3.0, 1.0);
-        assert!(a.merge_newest(h, 2.0, 1.0, 0.0));
+        assert!(a.merge_newest(h, 2.0, 1.0, 0.0, None));
         assert_eq!(a.withdraw_newest(h), None);
         assert_eq!(a.accepted(), 6);
     }
@@ -879,7 +953,7 @@ mod tests {
         let mut a = Averager::new(Averaging::Mean, 64, 0.2);
         a.set_pitch_per_force(k);
         for v in [1.0, 1.1, 0.9] {
-            a.push_on_grade(v, 1.0, 0.5);
+            a.push_on_grade(v, 1.0, 0.5, None);
         }
         let before = a.combined().unwrap().value_deg;
         let share = a.share();
@@ -891,7 +965,7 @@ mod tests {
             "{before} -> {after}, expected a shift of {expected}"
         );
         // Measured with the bias known now: taken as it is.
-        let h = a.push_on_grade(2.0, 1.0, 0.5);
+        let h = a.push_on_grade(2.0, 1.0, 0.5, None);
         let share_now = a.share();
         assert!((a.withdraw_newest(h).unwrap() - (2.0 - share_now * k * 0.5)).abs() < 1e-9);
         assert!((a.combined().unwrap().value_deg - after).abs() < 1e-9);
@@ -912,6 +986,39 @@ mod tests {
         assert_eq!(a.combined().unwrap().value_deg, 1.5);
     }
 
+    /// An entry that knows its own walk's answer to the x bias follows by that, not by
+    /// the body's mean dive; a pair by the mean of its two, a load change's prior by
+    /// the mean of the entries it came from; the grade's part stays k share.
+    #[test]
+    fn entries_follow_the_bias_by_their_own_walk() {
+        let (k, pull) = (0.25, 0.5);
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        a.set_pitch_per_force(k);
+        a.push_on_grade(1.0, 1.0, pull, Some(0.05));
+        let h = a.push_on_grade(1.1, 1.0, pull, Some(0.1));
+        assert!(a.merge_newest(h, 0.9, 3.0, pull, Some(0.0)));
+        a.push_on_grade(0.9, 2.0, pull, None);
+        // Weights 1, 4 (the pair: 0.1 and 0 weighing 1 and 3, 0.025) and 2 (k).
+        let walk = (0.05 + 4.0 * 0.025 + 2.0 * k) / 7.0;
+        let before = a.combined().unwrap().value_deg;
+        let share = a.share();
+        a.set_acc_bias_x(0.2);
+        let moved = a.combined().unwrap().value_deg - before;
+        let expected = (walk + k * share) * 0.2;
+        assert!((moved - expected).abs() < 1e-9, "{moved} vs {expected}");
+        // Not what the mean dive alone would give.
+        assert!((moved - k * (1.0 + share) * 0.2).abs() > 0.01);
+        a.restart_shifted(0.0, 0.0, 3.0);
+        let restarted = a.combined().unwrap().value_deg;
+        a.set_acc_bias_x(0.3);
+        let moved = a.combined().unwrap().value_deg - restarted;
+        let expected = (walk + k * a.share()) * 0.1;
+        assert!((moved - expected).abs() < 1e-9, "{moved} vs {expected}");
+        // A walk's answer that no window gives is not taken.
+        a.push_on_grade(1.0, 1.0, 0.0, Some(1e6));
+        assert_eq!(a.walk_per_bias_deg.last(), Some(&None));
+    }
+
     #[test]
     fn restart_from_newest_counts_a_pair_as_two_windows() {
         let mut a = Averager::new(Averaging::Mean, 64, 0.2);
@@ -919,7 +1026,7 @@ mod tests {
             a.push(0.2);
         }
         let h = a.push_window(1.6, 1.0);
-        assert!(a.merge_newest(h, 2.0, 1.0, 0.0));
+        assert!(a.merge_newest(h, 2.0, 1.0, 0.0, None));
         a.push(1.9);
         a.restart_from_newest(3);
         let c = a.combined().unwrap();
@@ -949,7 +1056,7 @@ mod tests {
         for i in 0..20 {
             let pull = [-1.2, -0.6, 0.0, 0.6, 1.2][i % 5];
             let scatter = if i % 2 == 0 { 0.03 } else { -0.03 };
-            a.push_on_grade(0.5 + share * 0.25 * pull + scatter, 1.0, pull);
+            a.push_on_grade(0.5 + share * 0.25 * pull + scatter, 1.0, pull, None);
         }
     }
 
@@ -979,8 +1086,8 @@ mod tests {
         let mut level = Averager::new(Averaging::Huber, 64, 0.2);
         for i in 0..20 {
             let scatter = if i % 2 == 0 { 0.03 } else { -0.03 };
-            a.push_on_grade(0.7 + scatter, 1.0, 0.8);
-            level.push_on_grade(0.5 + scatter, 1.0, 0.0);
+            a.push_on_grade(0.7 + scatter, 1.0, 0.8, None);
+            level.push_on_grade(0.5 + scatter, 1.0, 0.0, None);
         }
         assert!((a.share() - SHARE_PRIOR).abs() < 1e-9, "{}", a.share());
         let (c, l) = (a.combined().unwrap(), level.combined().unwrap());
@@ -996,7 +1103,7 @@ mod tests {
         a.restart_shifted(1.0, 0.05, 4.0);
         assert!((a.share() - before).abs() < 1e-9, "{} {before}", a.share());
         // A window on a grade under the new load is taken with that share, not the prior.
-        a.push_on_grade(1.5, 1.0, 1.0);
+        a.push_on_grade(1.5, 1.0, 1.0, None);
         assert!(
             a.grade_pitch_deg(1.0).abs() < 0.05,
             "{}",
@@ -1029,7 +1136,7 @@ mod tests {
         let mut old: Averager = serde_json::from_value(json).unwrap();
         old.set_pitch_per_force(0.3);
         assert!((old.combined().unwrap().value_deg - 0.5).abs() < 1e-9);
-        old.push_on_grade(0.5, 1.0, 1.0);
+        old.push_on_grade(0.5, 1.0, 1.0, None);
         assert!(old.combined().unwrap().value_deg.is_finite());
     }
 
@@ -1042,7 +1149,7 @@ mod tests {
         a.set_pitch_per_force(k);
         a.set_acc_bias_x(0.1);
         for v in [1.0, 1.2] {
-            a.push_on_grade(v, 1.0, 0.0);
+            a.push_on_grade(v, 1.0, 0.0, None);
         }
         a.set_acc_bias_x(0.2);
         let saved = a.combined().unwrap().value_deg;

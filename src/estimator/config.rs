@@ -178,6 +178,18 @@ pub struct EstimatorConfig {
     /// pull) times what is not yet known, the same in every window of a car. It uses
     /// the pitch per m/s^2 learnt from braking (`correct_grade_pitch`).
     pub rebias_windows: bool,
+    /// With `rebias_windows`, each window follows the bias by what its own walk says
+    /// (`WindowGeometry::slope_per_bias_x`: the gyro's turn from rest, weighed as the
+    /// slope weighs the path) instead of the body's mean pitch per m/s^2 learnt from
+    /// braking. The body's pitch builds up and rocks through a window, and a drive-off
+    /// walks less of it than the braking pitch says; a window over a change of grade
+    /// turns the bias by the road's pitch as well.
+    pub rebias_by_walk: bool,
+    /// Learn the body's squat per m/s^2 pulling away from the acceleration windows,
+    /// apart from its dive under braking, for the pitch the force gives the body where
+    /// an acceleration window's walk is one wheelbase out (`axle_chord`). Off, a body
+    /// is taken to squat as it dives.
+    pub learn_squat: bool,
     /// How far the accelerometer's horizontal bias may be off zero before any stop has
     /// shown it (1 sigma), m/s^2: 0.2 for an untrimmed MEMS part (20-30 mg), a few
     /// hundredths for one trimmed at its maker (its data sheet's offset after
@@ -321,6 +333,8 @@ impl Default for EstimatorConfig {
             learn_pitch_mode: true,
             correct_acc_bias: true,
             rebias_windows: true,
+            rebias_by_walk: true,
+            learn_squat: true,
             acc_bias_prior_mps2: 0.2,
             history_s: 30.0,
             load_change_deg: 0.2,

@@ -139,10 +139,17 @@ impl Estimator {
             })
     }
 
-    pub(super) fn window_setup(&self, q0: UnitQuaternion<f64>, g: f64) -> WindowSetup {
+    /// `reference_q`: see `WindowSetup::reference_q`.
+    pub(super) fn window_setup(
+        &self,
+        q0: UnitQuaternion<f64>,
+        reference_q: UnitQuaternion<f64>,
+        g: f64,
+    ) -> WindowSetup {
         let c = &self.cfg;
         WindowSetup {
             q0,
+            reference_q,
             gyro_bias_rps: self.bias_rps.unwrap_or_else(Vector3::zeros),
             acc_bias_mps2: self.acc_bias_mps2(),
             gravity_mps2: g,
@@ -190,9 +197,13 @@ impl Estimator {
     ) {
         match r {
             Ok(mut g) => {
+                let mut walk_rad = g.slope_per_bias_x;
                 if let Some(slope_rad) = self.axle_slope_rad(&g, condition, imu_pitch_rad) {
                     g.slope_rad = slope_rad;
+                    walk_rad = g.axle.map_or(walk_rad, |p| p.slope_per_bias_x);
                 }
+                // The value is the pitch less the slope; the reference's tilt moves both.
+                let walk = self.cfg.rebias_by_walk.then(|| -walk_rad.to_degrees());
                 // As measured, with the body's pitch on the stop's grade still in it;
                 // the average takes that out with the share it fits (`GradeShare`).
                 let measured = imu_pitch_rad - g.slope_rad + self.lane_roll_pitch_rad(&g);
@@ -228,10 +239,12 @@ impl Estimator {
                     && self.cfg.pair_stop_windows
                     && open_pair.is_some_and(|h| {
                         self.avg
-                            .merge_newest(h, measured.to_degrees(), weight, pull)
+                            .merge_newest(h, measured.to_degrees(), weight, pull, walk)
                     });
                 if !paired {
-                    let h = self.avg.push_on_grade(measured.to_degrees(), weight, pull);
+                    let h = self
+                        .avg
+                        .push_on_grade(measured.to_degrees(), weight, pull, walk);
                     if condition == Condition::DecelBeforeStop {
                         self.open_pair = Some(h);
                         self.stop_window = Some(h);
@@ -319,9 +332,10 @@ impl Estimator {
     /// walking back), and their height there is the pitch centre's less the
     /// wheelbase's share behind (ahead of) it times the road's pitch of the body
     /// there: the gyro's turn from rest less the pitch the acceleration gave it, from
-    /// the learnt pitch per m/s^2. Until that is learnt (the first braking), none.
+    /// the learnt pitch per m/s^2 (braking's walking back from a stop, pulling away's
+    /// walking on from one). Until the braking one is learnt (the first braking), none.
     fn axle_slope_rad(
-        &self,
+        &mut self,
         g: &window::WindowGeometry,
         condition: Condition,
         imu_pitch_rad: f64,
@@ -331,12 +345,35 @@ impl Estimator {
         if !self.cfg.correct_grade_pitch || per_force <= 0.0 {
             return None;
         }
-        let share = match condition {
-            Condition::AccelAfterStop => self.cfg.pitch_centre_share,
-            Condition::DecelBeforeStop => 1.0 - self.cfg.pitch_centre_share,
+        let (share, force_pitch) = match condition {
+            Condition::AccelAfterStop => (
+                self.cfg.pitch_centre_share,
+                self.squat_pitch_rad(p.accel_mps2, g.slope_rad),
+            ),
+            Condition::DecelBeforeStop => {
+                (1.0 - self.cfg.pitch_centre_share, per_force * p.accel_mps2)
+            }
         };
-        let road_turn = (p.pitch_rad - imu_pitch_rad) - per_force * p.accel_mps2;
+        let road_turn = (p.pitch_rad - imu_pitch_rad) - force_pitch;
         Some(p.slope_rad - share * road_turn)
+    }
+
+    /// The pitch pulling away at `accel_mps2` on a road of `slope_rad` gives the body
+    /// beyond its pitch held at rest there, rad, and the force it is per m/s^2 of: the
+    /// drivetrain takes over from the brakes the grade's pull (the share of it the
+    /// body shows), so that part pitches it by the squat's k less the dive's.
+    fn squat_pitch_rad(&mut self, accel_mps2: f64, slope_rad: f64) -> f64 {
+        let (force, _) = self.squat_force_mps2(accel_mps2, slope_rad);
+        self.squat_per_force_rad() * force - self.grade.per_force_rad() * (force - accel_mps2)
+    }
+
+    /// The drivetrain's force per unit mass pulling away at `accel_mps2` on a road of
+    /// `slope_rad` as far as the body pitches with it, m/s^2, and the pitch the brakes'
+    /// hold on that grade gave it at rest, rad.
+    fn squat_force_mps2(&mut self, accel_mps2: f64, slope_rad: f64) -> (f64, f64) {
+        let pull = super::STANDARD_GRAVITY_MPS2 * slope_rad.sin();
+        let held = self.avg.share() * pull;
+        (accel_mps2 + held, self.grade.per_force_rad() * held)
     }
 
     /// The pull of the window's grade along the road at its stop, g sin(slope), m/s^2
@@ -353,9 +390,18 @@ impl Estimator {
         if !self.cfg.correct_grade_pitch {
             return 0.0;
         }
-        if condition == Condition::DecelBeforeStop {
-            let rest = g.rest_centre_pitch_rad.unwrap_or(imu_pitch_rad);
-            self.grade.learn(g.mean_accel_mps2, g.mean_pitch_rad - rest);
+        match condition {
+            Condition::DecelBeforeStop => {
+                let rest = g.rest_centre_pitch_rad.unwrap_or(imu_pitch_rad);
+                self.grade.learn(g.mean_accel_mps2, g.mean_pitch_rad - rest);
+            }
+            // From the pitch held at rest on the grade to the squat under the force.
+            Condition::AccelAfterStop if self.cfg.learn_squat => {
+                let (force, held) = self.squat_force_mps2(g.mean_accel_mps2, g.slope_rad);
+                self.squat
+                    .learn(force, g.mean_pitch_rad - imu_pitch_rad + held);
+            }
+            Condition::AccelAfterStop => {}
         }
         self.avg
             .set_pitch_per_force(self.grade.per_force_rad().to_degrees());
@@ -541,6 +587,7 @@ mod tests {
     fn window(est: &mut Estimator, t_s: f64, value_deg: f64, duration_s: f64) -> Option<f64> {
         let g = WindowGeometry {
             slope_rad: 0.0,
+            slope_per_bias_x: 0.0,
             distance_m: 3.0,
             duration_s,
             start_s: t_s,

@@ -13,6 +13,12 @@
 //! reference. Braking, not pulling away, because a car held on a grade is held by its
 //! brakes, and anti-dive geometry makes the two differ on many cars.
 //!
+//! Pulling away, the drivetrain pushes the body and it squats by its own k_s per m/s^2
+//! (anti-squat geometry and the driven axle's torque reaction, not the brakes'),
+//! learnt from the acceleration windows the same way from a prior of k. A window's
+//! walk one wheelbase out takes out the pitch the force gave the body there
+//! (`fusion.rs`, `axle_slope_rad`), and pulling away that is k_s's.
+//!
 //! Whether the body shows all of k g sin(grade) at rest is left to the windows: the
 //! average fits the share of it (`average.rs`, `GradeShare`) with the load's pitch,
 //! from stops at different grades. A car held by its foot brake shows all of it; one
@@ -69,7 +75,19 @@ impl GradePitch {
 
     /// Body pitch per m/s^2 of longitudinal force, rad (nose-up for a force forward).
     pub fn per_force_rad(&self) -> f64 {
-        (self.sum_ap / (self.sum_aa + PRIOR_WEIGHT_MPS2_SQ)).clamp(0.0, MAX_PER_FORCE_RAD)
+        self.per_force_from_rad(0.0)
+    }
+
+    /// `per_force_rad` from a prior of `prior_rad` instead of 0 (the squat from the
+    /// dive: until acceleration windows tell, a body squats as it dives).
+    pub fn per_force_from_rad(&self, prior_rad: f64) -> f64 {
+        let prior = if prior_rad.is_finite() {
+            prior_rad
+        } else {
+            0.0
+        };
+        ((self.sum_ap + PRIOR_WEIGHT_MPS2_SQ * prior) / (self.sum_aa + PRIOR_WEIGHT_MPS2_SQ))
+            .clamp(0.0, MAX_PER_FORCE_RAD)
     }
 }
 
@@ -93,6 +111,21 @@ mod tests {
         let k = g.per_force_rad() / DEG;
         // The prior still holds k back by a percent.
         assert!((k - 0.25).abs() < 0.01, "{k}");
+    }
+
+    /// The squat starts from the dive and follows what pulling away shows.
+    #[test]
+    fn the_squat_starts_as_the_dive_and_learns_its_own() {
+        let (dive, mut squat) = (0.25 * DEG, GradePitch::default());
+        assert_eq!(squat.per_force_from_rad(dive), dive);
+        assert_eq!(squat.per_force_from_rad(f64::NAN), 0.0);
+        // A body that squats 0.1 deg per m/s^2, pulling away at 0.5-1.7 m/s^2.
+        for i in 0..30 {
+            let a = 0.5 + 0.04 * i as f64;
+            squat.learn(a, 0.1 * DEG * a);
+        }
+        let k = squat.per_force_from_rad(dive) / DEG;
+        assert!((k - 0.1).abs() < 0.01, "{k}");
     }
 
     #[test]

@@ -121,6 +121,9 @@ pub struct Estimator {
     last_slope_rad: Option<f64>,
     /// The body's pitch per m/s^2 of longitudinal force, learnt from braking.
     grade: GradePitch,
+    /// Its pitch per m/s^2 of the drivetrain's force, learnt from pulling away (from
+    /// a prior of `grade`'s).
+    squat: GradePitch,
     /// See [`Estimator::grade_share`].
     grade_share: f64,
     /// Sum and count of the accepted windows' travel yaw in the IMU's frame, rad.
@@ -203,6 +206,7 @@ impl Estimator {
             baseline_pitch_rad: None,
             last_slope_rad: None,
             grade: GradePitch::default(),
+            squat: GradePitch::default(),
             grade_share: average::SHARE_PRIOR,
             travel_yaw: (0.0, 0),
             floor_roll_rad: None,
@@ -227,6 +231,16 @@ impl Estimator {
     /// (`estimator/grade.rs`).
     pub fn pitch_per_force_deg(&self) -> f64 {
         self.grade.per_force_rad().to_degrees()
+    }
+
+    /// The body's pitch per m/s^2 of the drivetrain's force learnt from pulling away,
+    /// deg (`estimator/grade.rs`; the braking one until acceleration windows tell).
+    pub fn squat_per_force_deg(&self) -> f64 {
+        self.squat_per_force_rad().to_degrees()
+    }
+
+    fn squat_per_force_rad(&self) -> f64 {
+        self.squat.per_force_from_rad(self.grade.per_force_rad())
     }
 
     /// The share of its braking pitch the body shows standing on a grade, as the

@@ -34,6 +34,9 @@ pub struct EstimatorState {
     /// The body's pitch against braking learnt from deceleration windows (see `grade`).
     #[serde(default)]
     pub grade_pitch: Option<GradePitch>,
+    /// The body's pitch against the drivetrain's force, from acceleration windows.
+    #[serde(default)]
+    pub squat_pitch: Option<GradePitch>,
     /// How well the stops knew the bias along x and y (1 sigma), m/s^2; a state
     /// written before it was kept reads as known to 0.02.
     #[serde(default)]
@@ -108,6 +111,7 @@ impl Estimator {
             pitch_mode_fit: Some(self.mode_fit),
             stop_gravity_mps2: self.stop_bias.map(|g| [g.x.x, g.x.y, g.x.z]),
             grade_pitch: Some(self.grade),
+            squat_pitch: Some(self.squat),
             stop_bias_sd_mps2: self.stop_bias.map(|_| self.acc_bias_sd_mps2()),
             travel_yaw: (self.travel_yaw.1 > 0).then(|| {
                 (
@@ -196,11 +200,15 @@ impl Estimator {
         if st.grade_pitch.is_some_and(|g| !g.is_plausible()) {
             return Err(StateError::Implausible("grade_pitch"));
         }
+        if st.squat_pitch.is_some_and(|g| !g.is_plausible()) {
+            return Err(StateError::Implausible("squat_pitch"));
+        }
         if st.pitch_mode_fit.is_some_and(|f| !f.is_plausible()) {
             return Err(StateError::Implausible("pitch_mode_fit"));
         }
         self.mode_fit = st.pitch_mode_fit.unwrap_or_default();
         self.grade = st.grade_pitch.unwrap_or_default();
+        self.squat = st.squat_pitch.unwrap_or_default();
         self.last_slope_rad = st.last_road_slope_deg.map(f64::to_radians);
         let prior = Vector3::from(self.cfg.lever_arm_m);
         self.lever_fit = st.lever_fit.unwrap_or_default();

@@ -1042,7 +1042,7 @@ impl Estimator {
         // The walk starts from the reference freed of the accelerometer bias, turned by
         // the gyro as far as the rest edge.
         let q0 = q_win * (q_ref.inverse() * q0);
-        let setup = self.window_setup(q0, g_win);
+        let setup = self.window_setup(q0, q_win, g_win);
         // With a quiet accelerometer the velocity at the rest edge is read where the
         // swing has died out, no further than the last sample at rest, on a body that
         // settled within `REST_VELOCITY_SETTLED_S` of the edge. A noisy accelerometer's
@@ -1415,12 +1415,12 @@ impl Estimator {
         };
         // A settled reference is turned to the drive-off by the gyro as the raw one was;
         // the derotated one already stands there.
-        let (q0, imu_pitch_rad) = if settled {
-            (q_win * (q_ref.inverse() * q0), pitch_of(&q_win))
+        let (q0, reference_q, imu_pitch_rad) = if settled {
+            (q_win * (q_ref.inverse() * q0), q_win, pitch_of(&q_win))
         } else {
-            (q0, imu_pitch_rad)
+            (q0, q0, imu_pitch_rad)
         };
-        let setup = self.window_setup(q0, g_win);
+        let setup = self.window_setup(q0, reference_q, g_win);
         // A stop that settled ends with the body at rest: its rate is zero, not noise.
         // An IMU that vibrates is never at rest, though: its speed swings by up to the
         // vibration over its angular frequency (1.8 mm/s for 0.28 m/s^2 at 25 Hz, 5 mm

@@ -40,6 +40,10 @@ pub enum RejectReason {
 pub struct WindowSetup {
     /// Attitude at the start of the walk (from standstill gravity, eq. 9).
     pub q0: UnitQuaternion<f64>,
+    /// Attitude the reference's mean force at rest was measured in (`q0` turned back
+    /// by the gyro to the settled stop, or `q0` itself): the bias is taken out along
+    /// its x axis (see `WindowIntegrator::bias`).
+    pub reference_q: UnitQuaternion<f64>,
     /// Gyro bias to remove, rad/s (eq. 8).
     pub gyro_bias_rps: Vector3<f64>,
     /// Accelerometer bias to remove, m/s^2. The reference `q0` and `gravity_mps2` must
@@ -101,6 +105,11 @@ pub struct WindowGeometry {
     /// The y component of up in the IMU's frame at the walk's start: the sine of the
     /// elevation of the IMU's y axis (its roll), with `setup.acc_bias_mps2` taken out.
     pub start_up_y: f64,
+    /// How `slope_rad` moves per m/s^2 more accelerometer x bias removed, the reference
+    /// and the gravity magnitude taken again with it, less the tilt that moves the
+    /// reference's pitch as much, rad per m/s^2: the walk turns the bias into the
+    /// vertical as far as the body has pitched from rest (`WindowIntegrator`).
+    pub slope_per_bias_x: f64,
     /// Where the walk had gone one wheelbase, on a window whose slope is the chord.
     pub axle: Option<AxlePoint>,
     /// The pitch the body swung about where the walk left the reference, rad (the
@@ -124,6 +133,8 @@ pub struct AxlePoint {
     /// Acceleration along the start heading there, low-passed, m/s^2 (negative while
     /// braking, in either walk direction).
     pub accel_mps2: f64,
+    /// `WindowGeometry::slope_per_bias_x` of `slope_rad`, rad per m/s^2.
+    pub slope_per_bias_x: f64,
 }
 
 /// Time constant of the acceleration noted at the axle point, s: about the lag of a
@@ -163,8 +174,9 @@ pub struct WindowIntegrator {
     int_z: f64,
     int_x: f64,
     last_zx: (f64, f64),
-    /// Slope of the velocity-free fit when `distance_m` was reached, rad.
-    fit_slope: Option<f64>,
+    /// Slope of the velocity-free fit when `distance_m` was reached, rad, and its
+    /// weighted travel (`fit`'s `sx`), m s.
+    fit_slope: Option<(f64, f64)>,
     /// Time integrals of the body's pitch, rad s, and of the acceleration along
     /// `heading`, m/s, and their values when `distance_m` was reached.
     int_pitch: f64,
@@ -182,7 +194,26 @@ pub struct WindowIntegrator {
     /// had gone `setup.axle_m`: (height, length, pitch, acceleration).
     accel_lp: f64,
     axle: Option<(f64, f64, f64, f64)>,
+    /// The walk's answer to one m/s^2 more x bias removed: the rest's specific force
+    /// then points as much further from x, so the reference and its gravity follow it
+    /// and the vertical changes by how far x has turned from where it pointed in the
+    /// reference (`WindowSetup::reference_q`).
+    /// (height m, vertical speed m/s, x's rise since rest at the last step, its
+    /// height's time integral m s) per m/s^2, and (height, integral) at the window's
+    /// distance and the height at the axle point.
+    bias: BiasWalk,
     active: bool,
+}
+
+/// See `WindowIntegrator::bias`.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct BiasWalk {
+    z: f64,
+    vz: f64,
+    rise: f64,
+    int_z: f64,
+    at_distance: (f64, f64),
+    at_axle: f64,
 }
 
 impl WindowIntegrator {
@@ -191,6 +222,7 @@ impl WindowIntegrator {
         Self {
             setup: WindowSetup {
                 q0: UnitQuaternion::identity(),
+                reference_q: UnitQuaternion::identity(),
                 gyro_bias_rps: Vector3::zeros(),
                 acc_bias_mps2: Vector3::zeros(),
                 gravity_mps2: 9.80665,
@@ -234,6 +266,7 @@ impl WindowIntegrator {
             body_path_at_distance: (0.0, 0.0),
             accel_lp: 0.0,
             axle: None,
+            bias: BiasWalk::default(),
             active: false,
         }
     }
@@ -271,7 +304,16 @@ impl WindowIntegrator {
         self.body_path_at_distance = (0.0, 0.0);
         self.accel_lp = 0.0;
         self.axle = None;
+        self.bias = BiasWalk {
+            rise: self.x_rise(&setup.q0),
+            ..BiasWalk::default()
+        };
         self.active = true;
+    }
+
+    /// How far the IMU's x axis points up in `q` beyond the reference's, sine.
+    fn x_rise(&self, q: &UnitQuaternion<f64>) -> f64 {
+        (q * Vector3::x()).z - (self.setup.reference_q * Vector3::x()).z
     }
 
     pub fn is_active(&self) -> bool {
@@ -314,6 +356,15 @@ impl WindowIntegrator {
         self.p += self.v * dt + (a0 * 2.0 + a1) * (dt * dt / 6.0);
         self.v += (a0 + a1) * (dt * 0.5);
         self.q = q1;
+        // Per m/s^2 more bias removed, the vertical loses what x rose from the reference.
+        let rise = self.x_rise(&q1);
+        let bw = &mut self.bias;
+        let (b0, b1) = (-bw.rise, -rise);
+        let z_before = bw.z;
+        bw.z += bw.vz * dt + (b0 * 2.0 + b1) * (dt * dt / 6.0);
+        bw.vz += (b0 + b1) * (dt * 0.5);
+        bw.rise = rise;
+        bw.int_z += 0.5 * (z_before + bw.z) * dt.abs();
 
         let yaw = (q1 * w1).z.abs();
         let lat = a1.dot(&(q1 * Vector3::y())).abs();
@@ -353,13 +404,14 @@ impl WindowIntegrator {
         if self.axle.is_none() && self.setup.axle_m > 0.0 && self.horizontal_m >= self.setup.axle_m
         {
             self.axle = Some((corrected.z, self.horizontal_m, pitch, self.accel_lp));
+            self.bias.at_axle = self.bias.z;
         }
         // Weights t (T - t) on the acceleration, moved onto the positions: the velocity
         // the walk started with drops out.
         let fit = || {
             let sz = duration_s * zx.0 - 2.0 * self.int_z;
             let sx = duration_s * zx.1 - 2.0 * self.int_x;
-            (sz * sx.signum()).atan2(sx.abs())
+            ((sz * sx.signum()).atan2(sx.abs()), sx)
         };
         let share = self.setup.short_share;
         if share > 0.0 && self.short.is_none() && self.horizontal_m >= share * self.setup.distance_m
@@ -374,6 +426,7 @@ impl WindowIntegrator {
                 max_yaw: self.max_yaw,
                 max_lat: self.max_lat,
                 body_path: self.body_path,
+                bias: (self.bias.z, self.bias.int_z),
                 // A bend of one curvature leaves a path of half the length a quarter as
                 // far from its chord.
                 limit_share: share * share,
@@ -384,6 +437,7 @@ impl WindowIntegrator {
             self.body_path_at_distance = self.body_path;
             self.fit_slope = Some(fit());
             self.ints_at_distance = (self.int_pitch, self.int_accel);
+            self.bias.at_distance = (self.bias.z, self.bias.int_z);
         }
         if self.at_distance.is_some()
             && self.horizontal_m >= self.setup.distance_m + self.setup.check_extra_m
@@ -436,6 +490,7 @@ impl WindowIntegrator {
             max_yaw: self.max_yaw,
             max_lat: self.max_lat,
             body_path: self.body_path_at_distance,
+            bias: self.bias.at_distance,
             limit_share: 1.0,
         };
         let r = self.evaluate_span(&whole);
@@ -493,10 +548,22 @@ impl WindowIntegrator {
             .filter(|_| s.velocity_free && dev <= s.velocity_free_max_chord_m * w.limit_share);
         // The axle point is a chord too, from the same rest.
         let axle = self.axle.filter(|_| fit.is_none());
-        let slope_rad = fit.unwrap_or(slope_rad);
+        // The bias walk's height read as the slope reads the walk's: through the same
+        // fit, or over the same chord.
+        let chord_per_height = |slope: f64, len: f64| sign * slope.cos().powi(2) / len.max(1e-9);
+        let (zb, int_zb) = w.bias;
+        let (slope_rad, slope_per_bias_x) = match fit {
+            Some((fitted, sx)) if sx.abs() > 1e-9 => (
+                fitted,
+                fitted.cos().powi(2) / sx * (w.duration_s * zb - 2.0 * int_zb),
+            ),
+            Some((fitted, _)) => (fitted, 0.0),
+            None => (slope_rad, chord_per_height(slope_rad, w.len) * zb),
+        };
         let per_s = 1.0 / w.duration_s.max(1e-9);
         Ok(WindowGeometry {
             slope_rad,
+            slope_per_bias_x,
             distance_m: w.len,
             duration_s: w.duration_s,
             start_s: self.t_start_s,
@@ -509,10 +576,14 @@ impl WindowIntegrator {
             travel_yaw_rad: (sign * w.body_path.1).atan2(sign * w.body_path.0),
             start_up_y: (s.q0.inverse() * Vector3::z()).y,
             rest_centre_pitch_rad: None,
-            axle: axle.map(|(z, len, pitch_rad, accel_mps2)| AxlePoint {
-                slope_rad: (sign * z).atan2(len),
-                pitch_rad,
-                accel_mps2,
+            axle: axle.map(|(z, len, pitch_rad, accel_mps2)| {
+                let slope_rad = (sign * z).atan2(len);
+                AxlePoint {
+                    slope_rad,
+                    pitch_rad,
+                    accel_mps2,
+                    slope_per_bias_x: chord_per_height(slope_rad, len) * self.bias.at_axle,
+                }
             }),
         })
     }
@@ -524,7 +595,7 @@ struct Span {
     end: Vector3<f64>,
     len: f64,
     duration_s: f64,
-    fit_slope: Option<f64>,
+    fit_slope: Option<(f64, f64)>,
     /// Integrals of pitch and acceleration over the span (see `WindowGeometry`).
     ints: (f64, f64),
     /// Track points up to the end of the straightness check.
@@ -533,6 +604,8 @@ struct Span {
     max_lat: f64,
     /// Path along and across the IMU's heading (see `WindowIntegrator::body_path`).
     body_path: (f64, f64),
+    /// The bias walk's height at the span's end and its time integral.
+    bias: (f64, f64),
     /// Share of the chord limits that applies.
     limit_share: f64,
 }
@@ -546,6 +619,7 @@ mod tests {
     fn setup(q0: UnitQuaternion<f64>) -> WindowSetup {
         WindowSetup {
             q0,
+            reference_q: q0,
             gyro_bias_rps: Vector3::zeros(),
             acc_bias_mps2: Vector3::zeros(),
             gravity_mps2: G,
@@ -610,6 +684,71 @@ mod tests {
                 "{} m/s^2",
                 p.accel_mps2
             );
+        }
+    }
+
+    /// The slope's answer to the x bias, as the walk reports it, is what walking the
+    /// same samples again with more bias removed (the reference and gravity taken
+    /// again from the rest with it) gives, less the reference's tilt: on a body that
+    /// squats as it pulls away, for the fitted slope, the chord and the axle point;
+    /// and on one that starts the walk already turned from where the reference was
+    /// measured (a stop's dive carried back by the gyro), which the bias follows too.
+    #[test]
+    fn the_slope_answers_the_x_bias_as_the_body_turned_from_the_reference() {
+        let (slope, mount, a, bias) = (3.0_f64.to_radians(), 0.5_f64.to_radians(), 1.0, 0.2);
+        let full = 0.3_f64.to_radians() * a;
+        let db = 0.01;
+        for start in [0.0, 0.4_f64.to_radians()] {
+            // A squat from `start` to 0.3 deg per m/s^2 coming in over 0.4 s.
+            let squat = |t: f64| start + (full - start) * (1.0 - (-t / 0.4).exp());
+            let rate = |t: f64| (full - start) / 0.4 * (-t / 0.4).exp();
+            let sample = |t: f64, a: f64, pitch: f64| {
+                let f = specific_force(slope, mount + pitch, a) + Vector3::x() * bias;
+                ImuSample::new(t, f.into(), [0.0, -rate(t).to_degrees(), 0.0])
+            };
+            let walk = |b: f64, velocity_free: bool| {
+                let rest = Vector3::from(sample(0.0, 0.0, 0.0).acc_mps2) - Vector3::x() * b;
+                let reference_q = attitude_from_gravity(&rest).unwrap();
+                let q0 = reference_q * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -start);
+                let mut w = WindowIntegrator::with_capacity(2000);
+                let setup = WindowSetup {
+                    reference_q,
+                    acc_bias_mps2: Vector3::x() * b,
+                    gravity_mps2: rest.norm(),
+                    axle_m: 1.5,
+                    velocity_free,
+                    ..setup(q0)
+                };
+                w.start(setup, Vector3::zeros());
+                for k in 0..1000 {
+                    let t = k as f64 * 0.01;
+                    if let Step::Done(r) = w.push(&sample(t, a, squat(t))) {
+                        return (r.expect("window must be accepted"), pitch_of(&reference_q));
+                    }
+                }
+                panic!("window must complete");
+            };
+            for velocity_free in [true, false] {
+                let ((g1, p1), (g2, p2)) =
+                    (walk(0.1, velocity_free), walk(0.1 + db, velocity_free));
+                let tilt = p2 - p1;
+                assert!(tilt.abs() > 5e-4, "the reference tilts by about db / g");
+                let mut pairs = vec![(g2.slope_rad - g1.slope_rad - tilt, g1.slope_per_bias_x)];
+                if let (Some(x1), Some(x2)) = (g1.axle, g2.axle) {
+                    pairs.push((x2.slope_rad - x1.slope_rad - tilt, x1.slope_per_bias_x));
+                }
+                assert_eq!(pairs.len(), if velocity_free { 1 } else { 2 });
+                for (moved, per_bias) in pairs {
+                    // The squat turns x up, so more bias removed lowers the path ahead:
+                    // about the mean squat over the walk per m/s^2.
+                    assert!(per_bias < -0.5 * full, "{velocity_free}: {per_bias}");
+                    assert!(
+                        (moved - db * per_bias).abs() < 0.02 * (db * per_bias).abs(),
+                        "{start} {velocity_free}: walked again {moved}, predicted {}",
+                        db * per_bias
+                    );
+                }
+            }
         }
     }
 
