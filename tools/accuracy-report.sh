@@ -63,6 +63,16 @@ sens() {
         "realistic.pitch_per_accel_deg=[0.4, 0.5]"
     sens "stop-and-go, body pitching 0.4-0.5 deg per m/s^2 (a soft SUV)" stop-and-go \
         "realistic.pitch_per_accel_deg=[0.4, 0.5]"
+    sens "hilly, a body that squats half as much as it dives" hilly \
+        "realistic.squat_share=[0.5, 0.5]"
+    sens "hilly, INS-grade IMU, a body that squats half as much as it dives" hilly \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "realistic.squat_share=[0.5, 0.5]"
+    sens "urban, INS-grade IMU, a body that squats half as much as it dives" urban \
+        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
+        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "realistic.squat_share=[0.5, 0.5]"
     sens "urban, stiff suspension (pitch 1.6-1.9 Hz, damping 0.3-0.5, 0.08-0.15 deg per m/s^2)" \
         urban "realistic.pitch_freq_hz=[1.6, 1.9]" "realistic.pitch_damping=[0.3, 0.5]" \
         "realistic.pitch_per_accel_deg=[0.08, 0.15]"

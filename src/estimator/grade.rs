@@ -53,6 +53,12 @@ pub struct GradePitch {
     /// squared, (m/s^2)^2, forgotten at `FORGET` per window.
     sum_ap: f64,
     sum_aa: f64,
+    /// Sum of the pitch changes squared, rad^2, and the number of windows, both
+    /// forgotten alike: the fit's residual spread (absent in a state written before).
+    #[serde(default)]
+    sum_pp: f64,
+    #[serde(default)]
+    windows: f64,
 }
 
 impl GradePitch {
@@ -66,11 +72,30 @@ impl GradePitch {
         }
         self.sum_ap = FORGET * self.sum_ap + accel_mps2 * pitch_change_rad;
         self.sum_aa = FORGET * self.sum_aa + accel_mps2 * accel_mps2;
+        self.sum_pp = FORGET * self.sum_pp + pitch_change_rad * pitch_change_rad;
+        self.windows = FORGET * self.windows + 1.0;
+    }
+
+    /// Variance of the fitted k, rad^2 per (m/s^2)^2: the windows' scatter about the
+    /// line over their spread in acceleration. Infinite until three windows.
+    pub fn per_force_var(&self) -> f64 {
+        if !(self.windows >= 3.0 && self.sum_aa > 0.0) {
+            return f64::INFINITY;
+        }
+        let k = self.sum_ap / self.sum_aa;
+        let ss = (self.sum_pp - k * self.sum_ap).max(0.0);
+        ss / (self.windows - 1.0) / self.sum_aa
     }
 
     /// Finite sums, the squares' not negative: what a saved state must hold.
     pub fn is_plausible(&self) -> bool {
-        self.sum_ap.is_finite() && self.sum_aa.is_finite() && self.sum_aa >= 0.0
+        self.sum_ap.is_finite()
+            && self.sum_aa.is_finite()
+            && self.sum_aa >= 0.0
+            && self.sum_pp.is_finite()
+            && self.sum_pp >= 0.0
+            && self.windows.is_finite()
+            && self.windows >= 0.0
     }
 
     /// Body pitch per m/s^2 of longitudinal force, rad (nose-up for a force forward).
@@ -126,6 +151,19 @@ mod tests {
         }
         let k = squat.per_force_from_rad(dive) / DEG;
         assert!((k - 0.1).abs() < 0.01, "{k}");
+        // Windows on the line leave k known exactly; scatter about it, less so.
+        assert!(squat.per_force_var() < 1e-12, "{}", squat.per_force_var());
+        let mut noisy = GradePitch::default();
+        assert!(noisy.per_force_var().is_infinite());
+        for i in 0..30 {
+            let a = 0.5 + 0.04 * i as f64;
+            let scatter = if i % 2 == 0 { 0.05 } else { -0.05 } * DEG;
+            noisy.learn(a, 0.1 * DEG * a + scatter);
+        }
+        // 0.05 deg of scatter over windows whose squared accelerations sum to about
+        // 25 (m/s^2)^2 once forgotten: k to about 0.01 deg per m/s^2.
+        let sd = noisy.per_force_var().sqrt() / DEG;
+        assert!(sd > 0.005 && sd < 0.02, "{sd}");
     }
 
     #[test]

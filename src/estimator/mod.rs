@@ -46,6 +46,12 @@ use ring::Ring;
 use standstill::{ForwardCtx, Standstill};
 use window::WindowIntegrator;
 
+/// How far a body's squat per m/s^2 pulling away may differ from its dive under
+/// braking before the windows show it (1 sigma), as a share of the dive: anti-squat
+/// and anti-dive geometry differ, and a car squats by about half to one and a half of
+/// what it dives.
+const SQUAT_PRIOR_SD: f64 = 0.5;
+
 /// The estimator. See the module documentation.
 #[derive(Debug, Clone)]
 pub struct Estimator {
@@ -239,8 +245,16 @@ impl Estimator {
         self.squat_per_force_rad().to_degrees()
     }
 
+    /// The squat is the dive plus what pulling away showed of a difference, weighed
+    /// against both learners' scatter with a prior of none, known to `SQUAT_PRIOR_SD`
+    /// of the dive: a symmetric body's windows differ by their noise alone.
     fn squat_per_force_rad(&self) -> f64 {
-        self.squat.per_force_from_rad(self.grade.per_force_rad())
+        let dive = self.grade.per_force_rad();
+        let d = self.squat.per_force_from_rad(dive) - dive;
+        let noise = self.squat.per_force_var() + self.grade.per_force_var();
+        let prior = (SQUAT_PRIOR_SD * dive).powi(2);
+        let gain = prior / (prior + noise);
+        dive + if gain.is_finite() { gain * d } else { 0.0 }
     }
 
     /// The share of its braking pitch the body shows standing on a grade, as the
