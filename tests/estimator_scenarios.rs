@@ -317,18 +317,22 @@ fn error_on_grade(grade_pct: f64, correct: bool) -> f64 {
     let (_, est, drive) = run(&sc, cfg);
     let t = drive.imu.last().unwrap().t_s;
     if correct {
-        // What braking taught is kept across a restart; a corrupt record is refused.
+        // What braking and pulling away taught is kept across a restart; a corrupt
+        // record is refused.
         let saved = est.state();
         let mut restored = Estimator::new(EstimatorConfig::default()).unwrap();
         restored.restore(&saved).unwrap();
         assert_eq!(restored.pitch_per_force_deg(), est.pitch_per_force_deg());
-        let mut json = serde_json::to_value(&saved).unwrap();
-        json["grade_pitch"]["sum_aa"] = serde_json::json!(-1.0);
-        let corrupt: leveld::estimator::EstimatorState = serde_json::from_value(json).unwrap();
-        let err = restored
-            .restore(&corrupt)
-            .expect_err("a negative sum of squares");
-        assert!(err.to_string().contains("grade_pitch"), "{err}");
+        assert_eq!(restored.squat_per_force_deg(), est.squat_per_force_deg());
+        for (record, key) in [("grade_pitch", "sum_aa"), ("squat_pitch", "sum_pp")] {
+            let mut json = serde_json::to_value(&saved).unwrap();
+            json[record][key] = serde_json::json!(-1.0);
+            let corrupt: leveld::estimator::EstimatorState = serde_json::from_value(json).unwrap();
+            let err = restored
+                .restore(&corrupt)
+                .expect_err("a negative sum of squares");
+            assert!(err.to_string().contains(record), "{err}");
+        }
     }
     est.estimate().unwrap().road_to_body_deg - drive.truth_at(t).load_pitch_deg
 }

@@ -198,9 +198,9 @@ pub struct WindowIntegrator {
     /// then points as much further from x, so the reference and its gravity follow it
     /// and the vertical changes by how far x has turned from where it pointed in the
     /// reference (`WindowSetup::reference_q`).
-    /// (height m, vertical speed m/s, x's rise since rest at the last step, its
-    /// height's time integral m s) per m/s^2, and (height, integral) at the window's
-    /// distance and the height at the axle point.
+    /// Its height (m), vertical speed (m/s), x's rise from the reference at the last
+    /// step and the height's time integral (m s), per m/s^2, and (height, integral) at
+    /// the window's distance and the height at the axle point.
     bias: BiasWalk,
     active: bool,
 }
@@ -208,6 +208,8 @@ pub struct WindowIntegrator {
 /// See `WindowIntegrator::bias`.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct BiasWalk {
+    /// How far the IMU's x axis points up in the reference, sine.
+    reference_up: f64,
     z: f64,
     vz: f64,
     rise: f64,
@@ -305,15 +307,16 @@ impl WindowIntegrator {
         self.accel_lp = 0.0;
         self.axle = None;
         self.bias = BiasWalk {
-            rise: self.x_rise(&setup.q0),
+            reference_up: (setup.reference_q * Vector3::x()).z,
             ..BiasWalk::default()
         };
+        self.bias.rise = self.x_rise(&setup.q0);
         self.active = true;
     }
 
     /// How far the IMU's x axis points up in `q` beyond the reference's, sine.
     fn x_rise(&self, q: &UnitQuaternion<f64>) -> f64 {
-        (q * Vector3::x()).z - (self.setup.reference_q * Vector3::x()).z
+        (q * Vector3::x()).z - self.bias.reference_up
     }
 
     pub fn is_active(&self) -> bool {
