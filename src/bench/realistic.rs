@@ -184,7 +184,7 @@ impl RealisticSpec {
         if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= 2.0) {
             anyhow::bail!(
                 "realistic.squat_share = [{lo}, {hi}]: give [min, max] within 0..2; a car \
-                 squats by 0.3-1 of what it dives per m/s^2"
+                 squats by about 0.5-1.5 of what it dives per m/s^2"
             );
         }
         let [lo, hi] = self.heave_per_accel_mm;

@@ -197,8 +197,8 @@ impl Averager {
     /// (from stops at different grades), and a window measured with the bias `b0` known
     /// then is off by what the body's pitch in the window turns of the rest, `b - b0`:
     /// the walk rotates it into the vertical by the body's dive or squat, `k (b - b0)`
-    /// deg for `k` what the window's own walk says (the gyro's turn from rest, weighed
-    /// as its slope weighs the path), else the body's mean pitch per m/s^2 of force;
+    /// deg for `k` what the window's own walk says (the gyro's turn from its reference,
+    /// read as its slope reads the path), else the body's mean pitch per m/s^2 of force;
     /// and the reference tilts by
     /// `(b - b0) / g`, which moves the grade's pull by `b - b0` and its pitch by `share k
     /// (b - b0)`. Both are taken out of every entry as the fit reads it, so the windows

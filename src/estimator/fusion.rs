@@ -359,9 +359,9 @@ impl Estimator {
     }
 
     /// The pitch pulling away at `accel_mps2` on a road of `slope_rad` gives the body
-    /// beyond its pitch held at rest there, rad, and the force it is per m/s^2 of: the
-    /// drivetrain takes over from the brakes the grade's pull (the share of it the
-    /// body shows), so that part pitches it by the squat's k less the dive's.
+    /// beyond its pitch held at rest there, rad: the squat's k times the acceleration,
+    /// and the drivetrain takes over the grade's pull from the brakes (the share of it
+    /// the body shows), so that part pitches it by the squat's k less the dive's.
     fn squat_pitch_rad(&mut self, accel_mps2: f64, slope_rad: f64) -> f64 {
         let (force, _) = self.squat_force_mps2(accel_mps2, slope_rad);
         self.squat_per_force_rad() * force - self.grade.per_force_rad() * (force - accel_mps2)
