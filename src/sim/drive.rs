@@ -534,8 +534,17 @@ mod tests {
         road: crate::sim::scenario::Road,
         vehicle: crate::sim::scenario::Vehicle,
     ) -> super::Drive {
+        ideal_drive(SpeedProfile::default().hold(hold_s), road, vehicle)
+    }
+
+    /// A car driving `speed` on `road`, with ideal sensors.
+    fn ideal_drive(
+        speed: SpeedProfile,
+        road: crate::sim::scenario::Road,
+        vehicle: crate::sim::scenario::Vehicle,
+    ) -> super::Drive {
         super::simulate(&crate::sim::scenario::Scenario {
-            speed: SpeedProfile::default().hold(hold_s),
+            speed,
             road,
             load_pitch_deg: 0.0,
             load_changes: Vec::new(),
@@ -589,21 +598,12 @@ mod tests {
                 squat_share,
                 ..Vehicle::default()
             };
-            let d = super::simulate(&crate::sim::scenario::Scenario {
-                speed: SpeedProfile::default()
-                    .hold(1.0)
-                    .accel(1.0, 6.0)
-                    .accel(-1.0, 6.0)
-                    .hold(1.0),
-                road: Road::constant(0.0),
-                load_pitch_deg: 0.0,
-                load_changes: Vec::new(),
-                vehicle,
-                sensors: crate::sim::scenario::Sensors::ideal(),
-                shocks: Vec::new(),
-                imu_gaps: Vec::new(),
-                seed: 1,
-            });
+            let speed = SpeedProfile::default()
+                .hold(1.0)
+                .accel(1.0, 6.0)
+                .accel(-1.0, 6.0)
+                .hold(1.0);
+            let d = ideal_drive(speed, Road::constant(0.0), vehicle);
             (
                 d.truth_at(6.5).suspension_deg,
                 d.truth_at(12.5).suspension_deg,
