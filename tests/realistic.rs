@@ -274,6 +274,20 @@ fn a_quiet_imu_counts_its_gentle_windows_and_reaches_valid_sooner() {
     );
 }
 
+/// The methods of a run that compares leveld as configured by default ("on") with
+/// leveld as `off` configures it.
+fn default_and(
+    off: EstimatorConfig,
+) -> impl Fn() -> Vec<Box<dyn leveld::bench::baselines::PitchMethod>> {
+    use leveld::bench::baselines::Leveld;
+    move || {
+        vec![
+            Box::new(Leveld::new(EstimatorConfig::default(), "on")),
+            Box::new(Leveld::new(off.clone(), "off")),
+        ]
+    }
+}
+
 /// The stops learn the accelerometer's x bias from stops at different grades, over many
 /// of them on roads that are nearly level. A window measured before then is off by what
 /// the body's dive or squat turns of the bias not yet known into the vertical, and by as
@@ -285,17 +299,10 @@ fn a_quiet_imu_counts_its_gentle_windows_and_reaches_valid_sooner() {
 #[test]
 fn windows_measured_before_the_bias_was_known_are_read_with_the_bias_known_now() {
     use leveld::bench::accuracy::run_case;
-    use leveld::bench::baselines::Leveld;
-    let make = || -> Vec<Box<dyn leveld::bench::baselines::PitchMethod>> {
-        let off = EstimatorConfig {
-            rebias_windows: false,
-            ..EstimatorConfig::default()
-        };
-        vec![
-            Box::new(Leveld::new(EstimatorConfig::default(), "on")),
-            Box::new(Leveld::new(off, "off")),
-        ]
-    };
+    let make = default_and(EstimatorConfig {
+        rebias_windows: false,
+        ..EstimatorConfig::default()
+    });
     let (mut on, mut off) = (Vec::new(), Vec::new());
     for (name, seeds) in [("urban", 101..105), ("bumpy", 401..405)] {
         for seed in seeds {
@@ -327,17 +334,10 @@ fn windows_measured_before_the_bias_was_known_are_read_with_the_bias_known_now()
 #[test]
 fn a_body_that_squats_less_than_it_dives_has_its_squat_learnt_apart() {
     use leveld::bench::accuracy::run_case;
-    use leveld::bench::baselines::Leveld;
-    let make = || -> Vec<Box<dyn leveld::bench::baselines::PitchMethod>> {
-        let off = EstimatorConfig {
-            learn_squat: false,
-            ..EstimatorConfig::default()
-        };
-        vec![
-            Box::new(Leveld::new(EstimatorConfig::default(), "on")),
-            Box::new(Leveld::new(off, "off")),
-        ]
-    };
+    let make = default_and(EstimatorConfig {
+        learn_squat: false,
+        ..EstimatorConfig::default()
+    });
     let drives = |squat_share: f64| {
         let (mut on, mut off) = (Vec::new(), Vec::new());
         for (name, seeds) in [("hilly", 201..205), ("urban", 101..105)] {
