@@ -316,6 +316,9 @@ mod tests {
             "realistic.cross_slope_pct=30.0",
             "realistic.heave_per_accel_mm=[3.0, 1.0]",
             "realistic.heave_per_accel_mm=[0.0, 50.0]",
+            "realistic.squat_share=[0.8, 0.5]",
+            "realistic.squat_share=[-0.1, 0.5]",
+            "realistic.squat_share=[0.5, 3.0]",
         ] {
             assert!(set(&[bad]).is_err(), "{bad} was accepted");
         }

@@ -322,7 +322,7 @@ impl Averager {
         self.walk_per_bias_deg.resize(self.entries.len(), None);
     }
 
-    /// The entries' walk answer to the x bias, weighted as they count, deg per m/s^2:
+    /// The entries' walk answer to the x bias under their weights, deg per m/s^2: about
     /// what a value combined from them moves by (`None` without entries).
     fn mean_walk_per_bias_deg(&self) -> Option<f64> {
         let (mut sw, mut w) = (0.0, 0.0);
