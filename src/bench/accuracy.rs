@@ -155,6 +155,10 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         learn_squat: false,
         ..d()
     };
+    let keep_pitch = EstimatorConfig {
+        follow_learnt_pitch: false,
+        ..d()
+    };
     let paper = EstimatorConfig {
         window_distance_m: crate::sim::paper::PAPER_WINDOW_M,
         shift_windows: 0,
@@ -224,6 +228,7 @@ pub fn ablation() -> Vec<Box<dyn PitchMethod>> {
         Box::new(Leveld::new(keep_bias, "windows-keep-their-bias")),
         Box::new(Leveld::new(mean_dive_rebias, "rebias-by-mean-dive")),
         Box::new(Leveld::new(squat_as_dive, "squat-as-dive")),
+        Box::new(Leveld::new(keep_pitch, "windows-keep-their-pitch")),
         Box::new(Leveld::new(d(), "no-lane-roll").without_floor_roll()),
         Box::new(Leveld::new(paper, "paper-like")),
     ]

@@ -32,6 +32,14 @@ pub struct Averager {
     /// walks, deg (`None`: `per_force_deg`, the body's mean dive per m/s^2, stands in).
     #[serde(default)]
     walk_per_bias_deg: Vec<Option<f64>>,
+    /// Per entry, how its value moves with the body's dive and squat per m/s^2 (see
+    /// [`PitchTerms`]); a state written before they were kept has none.
+    #[serde(default)]
+    pitch_terms: Vec<PitchTerms>,
+    /// The body's squat per m/s^2 pulling away learnt so far, deg (see
+    /// [`Averager::set_squat_per_force`]).
+    #[serde(default)]
+    squat_per_force_deg: f64,
     /// What the windows of earlier loads (or a saved state) showed of the grade share,
     /// the prior of the current fit (see `GradeShare`).
     #[serde(default)]
@@ -58,6 +66,56 @@ pub struct Averager {
 /// The newest entry as it was when a window was pushed; see [`Averager::merge_newest`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PairHandle(u64);
+
+/// How a window's value depends on the body's pitch per m/s^2 the estimator had
+/// learnt when it measured it: `per_dive_mps2` deg of value per deg per m/s^2 of dive,
+/// `per_squat_mps2` per deg per m/s^2 of squat, and `taken_deg` what the two gave with
+/// the dive and squat of then. A window whose walk one wheelbase out takes the pitch the
+/// force gave the body there out of its slope (`estimator/fusion.rs`, `axle_slope_rad`)
+/// took it with the suspension as learnt so far; read with the one learnt now, the
+/// windows of a drive's first stops count as if measured with it. The terms of a pair
+/// of windows are their weighted mean, like their values. All 0: nothing to follow.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct PitchTerms {
+    pub per_dive_mps2: f64,
+    pub per_squat_mps2: f64,
+    pub taken_deg: f64,
+}
+
+impl PitchTerms {
+    /// Terms of `per_dive_mps2` and `per_squat_mps2` taken with a dive and squat of
+    /// `dive_deg` and `squat_deg` per m/s^2.
+    pub fn new(per_dive_mps2: f64, per_squat_mps2: f64, dive_deg: f64, squat_deg: f64) -> Self {
+        Self {
+            per_dive_mps2,
+            per_squat_mps2,
+            taken_deg: per_dive_mps2 * dive_deg + per_squat_mps2 * squat_deg,
+        }
+    }
+
+    /// A window's force is at most a few m/s^2 and its pitch per m/s^2 below a degree;
+    /// terms beyond that (a damaged state file) are not a window's.
+    fn plausible(&self) -> bool {
+        self.per_dive_mps2.abs() <= MAX_PITCH_TERM_MPS2
+            && self.per_squat_mps2.abs() <= MAX_PITCH_TERM_MPS2
+            && self.taken_deg.abs() <= MAX_PITCH_TERM_MPS2 * 2.0
+    }
+
+    fn mean(&self, w0: f64, other: &Self, w1: f64) -> Self {
+        let w = w0 + w1;
+        Self {
+            per_dive_mps2: (self.per_dive_mps2 * w0 + other.per_dive_mps2 * w1) / w,
+            per_squat_mps2: (self.per_squat_mps2 * w0 + other.per_squat_mps2 * w1) / w,
+            taken_deg: (self.taken_deg * w0 + other.taken_deg * w1) / w,
+        }
+    }
+
+    /// What they give with the dive and squat learnt now, less what they gave then, deg.
+    fn moved_deg(&self, dive_deg: f64, squat_deg: f64) -> f64 {
+        let d = self.per_dive_mps2 * dive_deg + self.per_squat_mps2 * squat_deg - self.taken_deg;
+        if d.is_finite() { d } else { 0.0 }
+    }
+}
 
 /// See [`Averager::fit`].
 struct Fit {
@@ -105,6 +163,8 @@ const SHARE_PRIOR_SD: f64 = 0.5;
 const SHARE_RANGE: (f64, f64) = (0.0, 1.5);
 /// A saved entry's bias beyond this is not an accelerometer's (5 m/s^2: half a g).
 const MAX_BIAS_X_MPS2: f64 = 5.0;
+/// A window's pitch term beyond this is not a window's, m/s^2 (see [`PitchTerms`]).
+const MAX_PITCH_TERM_MPS2: f64 = 20.0;
 /// A window's walk answer to the x bias beyond this is not a window's (10 deg per
 /// m/s^2: a 3 deg turn from rest in a walk at 0.3 m/s^2).
 const MAX_WALK_PER_BIAS_DEG: f64 = 10.0;
@@ -142,6 +202,8 @@ impl Averager {
             bias_x_mps2: Vec::with_capacity(capacity),
             acc_bias_x_mps2: 0.0,
             walk_per_bias_deg: Vec::with_capacity(capacity),
+            pitch_terms: Vec::with_capacity(capacity),
+            squat_per_force_deg: 0.0,
             share_prior: GradeShare::default(),
             accepted: 0,
             carried_ss: 0.0,
@@ -164,23 +226,28 @@ impl Averager {
     /// Add one window value (deg) with a weight relative to a typical window (its
     /// inverse predicted variance against that of a typical window).
     pub fn push_window(&mut self, value_deg: f64, weight: f64) -> PairHandle {
-        self.push_on_grade(value_deg, weight, 0.0, None)
+        self.push_on_grade(value_deg, weight, 0.0, None, PitchTerms::default())
     }
 
     /// `push_window` for a window measured against a reference at rest on a grade that
     /// pulls `pull_mps2` (g sin(slope)) along the road: its value still holds the
     /// body's pitch on that grade, which the fit takes out (see [`GradeShare`]).
     /// `walk_per_bias_deg`: how far the window's value moves per m/s^2 of x bias
-    /// through its walk (`None`: as far as the body's mean dive per m/s^2).
+    /// through its walk (`None`: as far as the body's mean dive per m/s^2); `terms`:
+    /// how it moves with the dive and squat learnt (see [`PitchTerms`]).
     pub fn push_on_grade(
         &mut self,
         value_deg: f64,
         weight: f64,
         pull_mps2: f64,
         walk_per_bias_deg: Option<f64>,
+        terms: PitchTerms,
     ) -> PairHandle {
         let b = self.acc_bias_x_mps2;
         self.push_weighted(value_deg, weight, pull_mps2, Some(b), walk_per_bias_deg);
+        if let Some(t) = self.pitch_terms.last_mut() {
+            *t = terms;
+        }
         self.accepted = self.accepted.saturating_add(1);
         PairHandle(self.changes)
     }
@@ -190,6 +257,14 @@ impl Averager {
     pub fn set_pitch_per_force(&mut self, per_force_deg: f64) {
         if per_force_deg.is_finite() {
             self.per_force_deg = per_force_deg;
+        }
+    }
+
+    /// The body's squat per m/s^2 pulling away learnt so far, deg: with the braking
+    /// pitch, what every entry's [`PitchTerms`] are read with.
+    pub fn set_squat_per_force(&mut self, squat_deg: f64) {
+        if squat_deg.is_finite() {
+            self.squat_per_force_deg = squat_deg;
         }
     }
 
@@ -232,6 +307,7 @@ impl Averager {
         weight: f64,
         pull_mps2: f64,
         walk_per_bias_deg: Option<f64>,
+        terms: PitchTerms,
     ) -> bool {
         if handle.0 != self.changes {
             return false;
@@ -239,15 +315,17 @@ impl Averager {
         self.sync_pulls();
         let b_now = self.acc_bias_x_mps2;
         let k = self.per_force_deg;
-        let (Some(e), Some(p), Some(b), Some(s)) = (
+        let (Some(e), Some(p), Some(b), Some(s), Some(t)) = (
             self.entries.last_mut(),
             self.pulls_mps2.last_mut(),
             self.bias_x_mps2.last_mut(),
             self.walk_per_bias_deg.last_mut(),
+            self.pitch_terms.last_mut(),
         ) else {
             return false;
         };
         let w = e.1 + weight;
+        *t = t.mean(e.1, &terms, weight);
         *p = (*p * e.1 + pull_mps2 * weight) / w;
         // Both measured with a bias (an entry without one takes the window's).
         let b0 = b.unwrap_or(b_now);
@@ -278,6 +356,7 @@ impl Averager {
         self.pulls_mps2.truncate(self.entries.len());
         self.bias_x_mps2.truncate(self.entries.len());
         self.walk_per_bias_deg.truncate(self.entries.len());
+        self.pitch_terms.truncate(self.entries.len());
         self.pair_bits >>= 1;
         self.accepted = self.accepted.saturating_sub(1);
         self.changes = self.changes.wrapping_add(1);
@@ -300,6 +379,7 @@ impl Averager {
             self.pulls_mps2.remove(0);
             self.bias_x_mps2.remove(0);
             self.walk_per_bias_deg.remove(0);
+            self.pitch_terms.remove(0);
         }
         self.entries.push((value_deg, w));
         self.pulls_mps2.push(if pull_mps2.is_finite() {
@@ -310,6 +390,7 @@ impl Averager {
         self.bias_x_mps2.push(bias_x_mps2.filter(|b| b.is_finite()));
         self.walk_per_bias_deg
             .push(walk_per_bias_deg.filter(|s| s.abs() <= MAX_WALK_PER_BIAS_DEG));
+        self.pitch_terms.push(PitchTerms::default());
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits <<= 1;
     }
@@ -320,6 +401,8 @@ impl Averager {
         self.pulls_mps2.resize(self.entries.len(), 0.0);
         self.bias_x_mps2.resize(self.entries.len(), None);
         self.walk_per_bias_deg.resize(self.entries.len(), None);
+        self.pitch_terms
+            .resize(self.entries.len(), PitchTerms::default());
     }
 
     /// The entries' walk answer to the x bias under their weights, deg per m/s^2: about
@@ -370,6 +453,7 @@ impl Averager {
         self.pulls_mps2.clear();
         self.bias_x_mps2.clear();
         self.walk_per_bias_deg.clear();
+        self.pitch_terms.clear();
         self.changes = self.changes.wrapping_add(1);
         self.pair_bits = 0;
         self.accepted = 0;
@@ -406,6 +490,7 @@ impl Averager {
         self.bias_x_mps2.drain(..self.bias_x_mps2.len() - keep);
         self.walk_per_bias_deg
             .drain(..self.walk_per_bias_deg.len() - keep);
+        self.pitch_terms.drain(..self.pitch_terms.len() - keep);
         self.changes = self.changes.wrapping_add(1);
         for (i, e) in self.entries.iter_mut().rev().enumerate() {
             e.1 = if i < 64 && self.pair_bits >> i & 1 == 1 {
@@ -443,7 +528,8 @@ impl Averager {
     }
 
     /// Each entry as (value deg, weight, its pitch from the grade at share 1, deg), read
-    /// with the x bias known now (see [`Averager::set_acc_bias_x`]).
+    /// with the x bias known now (see [`Averager::set_acc_bias_x`]) and the dive and
+    /// squat learnt now (see [`PitchTerms`]).
     fn graded(&self, i: usize) -> (f64, f64, f64) {
         let (v, w) = self.entries[i];
         let pull = self.pulls_mps2.get(i).copied().unwrap_or(0.0);
@@ -455,8 +541,11 @@ impl Averager {
             .map(|b| self.acc_bias_x_mps2 - b)
             .filter(|d| d.is_finite())
             .unwrap_or(0.0);
+        let pitch = self.pitch_terms.get(i).map_or(0.0, |t| {
+            t.moved_deg(self.per_force_deg, self.squat_per_force_deg)
+        });
         (
-            v + self.walk_per_bias(i) * db,
+            v + self.walk_per_bias(i) * db + pitch,
             w,
             self.per_force_deg * (pull - db),
         )
@@ -687,6 +776,9 @@ impl Averager {
         if stored.per_force_deg.is_finite() {
             self.per_force_deg = stored.per_force_deg;
         }
+        if stored.squat_per_force_deg.is_finite() {
+            self.squat_per_force_deg = stored.squat_per_force_deg;
+        }
         if let Some(share) = f.share_as_prior() {
             self.share_prior = share;
         }
@@ -704,6 +796,15 @@ impl Averager {
         }
         if !self.per_force_deg.is_finite() {
             self.per_force_deg = 0.0;
+        }
+        if !self.squat_per_force_deg.is_finite() {
+            self.squat_per_force_deg = 0.0;
+        }
+        self.pitch_terms.truncate(self.entries.len());
+        for t in &mut self.pitch_terms {
+            if !t.plausible() {
+                *t = PitchTerms::default();
+            }
         }
         // Entries cannot be read against a bias that is not an accelerometer's: they
         // are read as measured, and one with such a bias of its own alike.
@@ -731,6 +832,7 @@ impl Averager {
         self.pulls_mps2.clear();
         self.bias_x_mps2.clear();
         self.walk_per_bias_deg.clear();
+        self.pitch_terms.clear();
         self.carried_ss = 0.0;
         self.carried_dof = 0.0;
         // A seed (end of line, a restored average) reads the bias its own way: nothing
@@ -906,19 +1008,19 @@ mod tests {
         let mut a = Averager::new(Averaging::Mean, 64, 0.2);
         a.push(1.0);
         let h = a.push_window(0.4, 1.0);
-        assert!(a.merge_newest(h, 0.0, 0.25, 0.0, None));
+        assert!(a.merge_newest(h, 0.0, 0.25, 0.0, None, PitchTerms::default()));
         let c = a.combined().unwrap();
         assert!((c.weight - 2.25).abs() < 1e-12);
         assert!((c.value_deg - (1.0 + 0.4 + 0.0 * 0.25) / 2.25).abs() < 1e-12);
         assert_eq!(a.accepted(), 3);
         // Used once, and never after another window or a restart.
-        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None));
+        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None, PitchTerms::default()));
         let h = a.push_window(0.5, 1.0);
         a.push(0.6);
-        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None));
+        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None, PitchTerms::default()));
         let h = a.push_window(0.5, 1.0);
         a.restart_shifted(0.3, 0.05, 4.0);
-        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None));
+        assert!(!a.merge_newest(h, 0.0, 1.0, 0.0, None, PitchTerms::default()));
         assert_eq!(a.accepted(), 0);
     }
 
@@ -938,7 +1040,7 @@ mod tests {
         a.push(0.9);
         assert_eq!(a.withdraw_newest(h), None);
         let h = a.push_window(3.0, 1.0);
-        assert!(a.merge_newest(h, 2.0, 1.0, 0.0, None));
+        assert!(a.merge_newest(h, 2.0, 1.0, 0.0, None, PitchTerms::default()));
         assert_eq!(a.withdraw_newest(h), None);
         assert_eq!(a.accepted(), 6);
     }
@@ -953,7 +1055,7 @@ mod tests {
         let mut a = Averager::new(Averaging::Mean, 64, 0.2);
         a.set_pitch_per_force(k);
         for v in [1.0, 1.1, 0.9] {
-            a.push_on_grade(v, 1.0, 0.5, None);
+            a.push_on_grade(v, 1.0, 0.5, None, PitchTerms::default());
         }
         let before = a.combined().unwrap().value_deg;
         let share = a.share();
@@ -965,7 +1067,7 @@ mod tests {
             "{before} -> {after}, expected a shift of {expected}"
         );
         // Measured with the bias known now: taken as it is.
-        let h = a.push_on_grade(2.0, 1.0, 0.5, None);
+        let h = a.push_on_grade(2.0, 1.0, 0.5, None, PitchTerms::default());
         let share_now = a.share();
         assert!((a.withdraw_newest(h).unwrap() - (2.0 - share_now * k * 0.5)).abs() < 1e-9);
         assert!((a.combined().unwrap().value_deg - after).abs() < 1e-9);
@@ -994,10 +1096,10 @@ mod tests {
         let (k, pull) = (0.25, 0.5);
         let mut a = Averager::new(Averaging::Mean, 64, 0.2);
         a.set_pitch_per_force(k);
-        a.push_on_grade(1.0, 1.0, pull, Some(0.05));
-        let h = a.push_on_grade(1.1, 1.0, pull, Some(0.1));
-        assert!(a.merge_newest(h, 0.9, 3.0, pull, Some(0.0)));
-        a.push_on_grade(0.9, 2.0, pull, None);
+        a.push_on_grade(1.0, 1.0, pull, Some(0.05), PitchTerms::default());
+        let h = a.push_on_grade(1.1, 1.0, pull, Some(0.1), PitchTerms::default());
+        assert!(a.merge_newest(h, 0.9, 3.0, pull, Some(0.0), PitchTerms::default()));
+        a.push_on_grade(0.9, 2.0, pull, None, PitchTerms::default());
         // Weights 1, 4 (the pair: 0.1 and 0 weighing 1 and 3, 0.025) and 2 (k).
         let walk = (0.05 + 4.0 * 0.025 + 2.0 * k) / 7.0;
         let before = a.combined().unwrap().value_deg;
@@ -1015,8 +1117,42 @@ mod tests {
         let expected = (walk + k * a.share()) * 0.1;
         assert!((moved - expected).abs() < 1e-9, "{moved} vs {expected}");
         // A walk's answer that no window gives is not taken.
-        a.push_on_grade(1.0, 1.0, 0.0, Some(1e6));
+        a.push_on_grade(1.0, 1.0, 0.0, Some(1e6), PitchTerms::default());
         assert_eq!(a.walk_per_bias_deg.last(), Some(&None));
+    }
+
+    #[test]
+    fn entries_follow_the_dive_and_squat_learnt_since() {
+        // Measured with a dive and a squat of 0.2 deg per m/s^2: a stop's pair (its
+        // deceleration window's axle point at -1.5 m/s^2, its acceleration window's at
+        // +1.6, half of each force's pitch in the value) and a drive-off alone.
+        let (d0, s0) = (0.2, 0.2);
+        let mut a = Averager::new(Averaging::Mean, 64, 0.2);
+        a.set_pitch_per_force(d0);
+        a.set_squat_per_force(s0);
+        let braking = PitchTerms::new(0.75, 0.0, d0, s0);
+        let pulling = PitchTerms::new(0.0, -0.8, d0, s0);
+        let h = a.push_on_grade(1.0, 1.0, 0.0, None, braking);
+        assert!(a.merge_newest(h, 1.2, 3.0, 0.0, None, pulling));
+        a.push_on_grade(0.8, 2.0, 0.0, None, pulling);
+        let before = a.combined().unwrap().value_deg;
+        assert!((before - (1.0 + 3.0 * 1.2 + 2.0 * 0.8) / 6.0).abs() < 1e-12);
+        // Learnt since: the body dives 0.25 and squats 0.1.
+        a.set_pitch_per_force(0.25);
+        a.set_squat_per_force(0.1);
+        let moved = a.combined().unwrap().value_deg - before;
+        let (b, p) = (0.75 * 0.05, -0.8 * -0.1);
+        let expected = (b + 3.0 * p + 2.0 * p) / 6.0;
+        assert!((moved - expected).abs() < 1e-12, "{moved} vs {expected}");
+        // A restart's prior was read with them: it stays.
+        a.restart_shifted(0.0, 0.0, 3.0);
+        let restarted = a.combined().unwrap().value_deg;
+        a.set_squat_per_force(0.3);
+        assert_eq!(a.combined().unwrap().value_deg, restarted);
+        // Terms no window gives (a damaged state) are dropped, not followed.
+        a.push_on_grade(1.0, 1.0, 0.0, None, PitchTerms::new(1e9, 0.0, d0, s0));
+        a.sanitize_learnt();
+        assert_eq!(a.pitch_terms.last(), Some(&PitchTerms::default()));
     }
 
     #[test]
@@ -1026,7 +1162,7 @@ mod tests {
             a.push(0.2);
         }
         let h = a.push_window(1.6, 1.0);
-        assert!(a.merge_newest(h, 2.0, 1.0, 0.0, None));
+        assert!(a.merge_newest(h, 2.0, 1.0, 0.0, None, PitchTerms::default()));
         a.push(1.9);
         a.restart_from_newest(3);
         let c = a.combined().unwrap();
@@ -1056,7 +1192,13 @@ mod tests {
         for i in 0..20 {
             let pull = [-1.2, -0.6, 0.0, 0.6, 1.2][i % 5];
             let scatter = if i % 2 == 0 { 0.03 } else { -0.03 };
-            a.push_on_grade(0.5 + share * 0.25 * pull + scatter, 1.0, pull, None);
+            a.push_on_grade(
+                0.5 + share * 0.25 * pull + scatter,
+                1.0,
+                pull,
+                None,
+                PitchTerms::default(),
+            );
         }
     }
 
@@ -1086,8 +1228,8 @@ mod tests {
         let mut level = Averager::new(Averaging::Huber, 64, 0.2);
         for i in 0..20 {
             let scatter = if i % 2 == 0 { 0.03 } else { -0.03 };
-            a.push_on_grade(0.7 + scatter, 1.0, 0.8, None);
-            level.push_on_grade(0.5 + scatter, 1.0, 0.0, None);
+            a.push_on_grade(0.7 + scatter, 1.0, 0.8, None, PitchTerms::default());
+            level.push_on_grade(0.5 + scatter, 1.0, 0.0, None, PitchTerms::default());
         }
         assert!((a.share() - SHARE_PRIOR).abs() < 1e-9, "{}", a.share());
         let (c, l) = (a.combined().unwrap(), level.combined().unwrap());
@@ -1103,7 +1245,7 @@ mod tests {
         a.restart_shifted(1.0, 0.05, 4.0);
         assert!((a.share() - before).abs() < 1e-9, "{} {before}", a.share());
         // A window on a grade under the new load is taken with that share, not the prior.
-        a.push_on_grade(1.5, 1.0, 1.0, None);
+        a.push_on_grade(1.5, 1.0, 1.0, None, PitchTerms::default());
         assert!(
             a.grade_pitch_deg(1.0).abs() < 0.05,
             "{}",
@@ -1136,7 +1278,7 @@ mod tests {
         let mut old: Averager = serde_json::from_value(json).unwrap();
         old.set_pitch_per_force(0.3);
         assert!((old.combined().unwrap().value_deg - 0.5).abs() < 1e-9);
-        old.push_on_grade(0.5, 1.0, 1.0, None);
+        old.push_on_grade(0.5, 1.0, 1.0, None, PitchTerms::default());
         assert!(old.combined().unwrap().value_deg.is_finite());
     }
 
@@ -1149,7 +1291,7 @@ mod tests {
         a.set_pitch_per_force(k);
         a.set_acc_bias_x(0.1);
         for v in [1.0, 1.2] {
-            a.push_on_grade(v, 1.0, 0.0, None);
+            a.push_on_grade(v, 1.0, 0.0, None, PitchTerms::default());
         }
         a.set_acc_bias_x(0.2);
         let saved = a.combined().unwrap().value_deg;

@@ -190,6 +190,12 @@ pub struct EstimatorConfig {
     /// an acceleration window's walk is one wheelbase out (`axle_chord`). Off, a body
     /// is taken to squat as it dives.
     pub learn_squat: bool,
+    /// A window whose slope is taken between the axles (`axle_chord`) took the pitch
+    /// the force gave the body there with the dive and squat learnt by then; the average
+    /// reads each such window with the ones learnt since (`average::PitchTerms`). Off,
+    /// a window keeps what it was measured with, and the first stops' windows, taken
+    /// before the squat is learnt, keep its error.
+    pub follow_learnt_pitch: bool,
     /// How far the accelerometer's horizontal bias may be off zero before any stop has
     /// shown it (1 sigma), m/s^2: 0.2 for an untrimmed MEMS part (20-30 mg), a few
     /// hundredths for one trimmed at its maker (its data sheet's offset after
@@ -334,6 +340,7 @@ impl Default for EstimatorConfig {
             correct_acc_bias: true,
             rebias_windows: true,
             rebias_by_walk: true,
+            follow_learnt_pitch: true,
             learn_squat: true,
             acc_bias_prior_mps2: 0.2,
             history_s: 30.0,

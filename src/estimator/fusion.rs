@@ -1,6 +1,7 @@
 //! From window geometry to the estimate: eq. 16 per window, the average (eq. 17 or
 //! Huber), shifts and load changes applied to it.
 
+use super::average::PitchTerms;
 use super::window::{self, Step, WindowSetup};
 use super::{Condition, Estimate, Estimator, Event, RejectReason, WindowReport};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -198,9 +199,13 @@ impl Estimator {
         match r {
             Ok(mut g) => {
                 let mut walk_rad = g.slope_per_bias_x;
-                if let Some(slope_rad) = self.axle_slope_rad(&g, condition, imu_pitch_rad) {
+                let mut terms = PitchTerms::default();
+                if let Some((slope_rad, t)) = self.axle_slope_rad(&g, condition, imu_pitch_rad) {
                     g.slope_rad = slope_rad;
                     walk_rad = g.axle.map_or(walk_rad, |p| p.slope_per_bias_x);
+                    if self.cfg.follow_learnt_pitch {
+                        terms = t;
+                    }
                 }
                 // The value is the pitch less the slope; the reference's tilt moves both.
                 let walk = self.cfg.rebias_by_walk.then(|| -walk_rad.to_degrees());
@@ -239,12 +244,12 @@ impl Estimator {
                     && self.cfg.pair_stop_windows
                     && open_pair.is_some_and(|h| {
                         self.avg
-                            .merge_newest(h, measured.to_degrees(), weight, pull, walk)
+                            .merge_newest(h, measured.to_degrees(), weight, pull, walk, terms)
                     });
                 if !paired {
-                    let h = self
-                        .avg
-                        .push_on_grade(measured.to_degrees(), weight, pull, walk);
+                    let h =
+                        self.avg
+                            .push_on_grade(measured.to_degrees(), weight, pull, walk, terms);
                     if condition == Condition::DecelBeforeStop {
                         self.open_pair = Some(h);
                         self.stop_window = Some(h);
@@ -334,46 +339,49 @@ impl Estimator {
     /// there: the gyro's turn from rest less the pitch the acceleration gave it, from
     /// the learnt pitch per m/s^2 (braking's walking back from a stop, pulling away's
     /// walking on from one). Until the braking one is learnt (the first braking), none.
+    /// With the slope, how the window's value (pitch less slope) moves with the dive
+    /// and squat learnt, so that the average reads it with the ones learnt later.
     fn axle_slope_rad(
         &mut self,
         g: &window::WindowGeometry,
         condition: Condition,
         imu_pitch_rad: f64,
-    ) -> Option<f64> {
+    ) -> Option<(f64, PitchTerms)> {
         let p = g.axle?;
         let per_force = self.grade.per_force_rad();
         if !self.cfg.correct_grade_pitch || per_force <= 0.0 {
             return None;
         }
-        let (share, force_pitch) = match condition {
+        let squat = self.squat_per_force_rad();
+        // The force pitch is linear in the dive and the squat: (per dive, per squat).
+        let (share, (per_dive, per_squat)) = match condition {
             Condition::AccelAfterStop => (
                 self.cfg.pitch_centre_share,
-                self.squat_pitch_rad(p.accel_mps2, g.slope_rad),
+                self.squat_pitch_terms(p.accel_mps2, g.slope_rad),
             ),
-            Condition::DecelBeforeStop => {
-                (1.0 - self.cfg.pitch_centre_share, per_force * p.accel_mps2)
-            }
+            Condition::DecelBeforeStop => (1.0 - self.cfg.pitch_centre_share, (p.accel_mps2, 0.0)),
         };
+        let force_pitch = per_dive * per_force + per_squat * squat;
         let road_turn = (p.pitch_rad - imu_pitch_rad) - force_pitch;
-        Some(p.slope_rad - share * road_turn)
+        // The value takes the share of the force pitch out.
+        let terms = PitchTerms::new(
+            -share * per_dive,
+            -share * per_squat,
+            per_force.to_degrees(),
+            squat.to_degrees(),
+        );
+        Some((p.slope_rad - share * road_turn, terms))
     }
 
     /// The pitch pulling away at `accel_mps2` on a road of `slope_rad` gives the body
-    /// beyond its pitch held at rest there, rad: the squat's k times the acceleration,
-    /// and the drivetrain takes over the grade's pull from the brakes (the share of it
-    /// the body shows), so that part pitches it by the squat's k less the dive's.
-    fn squat_pitch_rad(&mut self, accel_mps2: f64, slope_rad: f64) -> f64 {
-        let (force, _) = self.squat_force_mps2(accel_mps2, slope_rad);
-        self.squat_per_force_rad() * force - self.grade.per_force_rad() * (force - accel_mps2)
-    }
-
-    /// The drivetrain's force per unit mass pulling away at `accel_mps2` on a road of
-    /// `slope_rad` as far as the body pitches with it, m/s^2, and the pitch the brakes'
-    /// hold on that grade gave it at rest, rad.
-    fn squat_force_mps2(&mut self, accel_mps2: f64, slope_rad: f64) -> (f64, f64) {
+    /// beyond its pitch held at rest there, as its factors of the dive and of the squat
+    /// per m/s^2, m/s^2: the squat's k times the drivetrain's force, which takes over
+    /// the grade's pull from the brakes (the share of it the body shows, as the average
+    /// fits it), less the dive's k times that pull, the pitch the brakes held at rest.
+    fn squat_pitch_terms(&mut self, accel_mps2: f64, slope_rad: f64) -> (f64, f64) {
         let pull = super::STANDARD_GRAVITY_MPS2 * slope_rad.sin();
         let held = self.avg.share() * pull;
-        (accel_mps2 + held, self.grade.per_force_rad() * held)
+        (-held, accel_mps2 + held)
     }
 
     /// The pull of the window's grade along the road at its stop, g sin(slope), m/s^2
@@ -397,14 +405,17 @@ impl Estimator {
             }
             // From the pitch held at rest on the grade to the squat under the force.
             Condition::AccelAfterStop if self.cfg.learn_squat => {
-                let (force, held) = self.squat_force_mps2(g.mean_accel_mps2, g.slope_rad);
+                let (per_dive, force) = self.squat_pitch_terms(g.mean_accel_mps2, g.slope_rad);
+                let held_rad = per_dive * self.grade.per_force_rad();
                 self.squat
-                    .learn(force, g.mean_pitch_rad - imu_pitch_rad + held);
+                    .learn(force, g.mean_pitch_rad - imu_pitch_rad - held_rad);
             }
             Condition::AccelAfterStop => {}
         }
         self.avg
             .set_pitch_per_force(self.grade.per_force_rad().to_degrees());
+        self.avg
+            .set_squat_per_force(self.squat_per_force_rad().to_degrees());
         super::STANDARD_GRAVITY_MPS2 * g.slope_rad.sin()
     }
 
