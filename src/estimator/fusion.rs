@@ -405,10 +405,11 @@ impl Estimator {
             }
             // From the pitch held at rest on the grade to the squat under the force.
             Condition::AccelAfterStop if self.cfg.learn_squat => {
+                // The dive's factor is minus the pull the brakes held at rest.
                 let (per_dive, force) = self.squat_pitch_terms(g.mean_accel_mps2, g.slope_rad);
-                let held_rad = per_dive * self.grade.per_force_rad();
+                let held_pitch_rad = -per_dive * self.grade.per_force_rad();
                 self.squat
-                    .learn(force, g.mean_pitch_rad - imu_pitch_rad - held_rad);
+                    .learn(force, g.mean_pitch_rad - imu_pitch_rad + held_pitch_rad);
             }
             Condition::AccelAfterStop => {}
         }
