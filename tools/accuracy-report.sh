@@ -14,6 +14,9 @@ run bench accuracy --plots docs > "$tmp/base1"
 run bench accuracy --seeds 8 > "$tmp/base8"
 run bench accuracy --scenarios scenarios/realistic/*.toml --seeds 8 > "$tmp/real8"
 run bench accuracy --ablation > "$tmp/abl"
+# An INS-grade IMU: 30 ug/sqrt(Hz), 0.003 deg/s/sqrt(Hz), slow bias drift.
+ins=(sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001
+    sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005)
 # The realistic drives with one thing about the car or its sensors changed.
 sens() {
     local name=$1 file=$2; shift 2
@@ -30,11 +33,9 @@ sens() {
     sens "urban, accelerometer 1000 ug/rtHz" urban sensors.acc_noise_ug_rthz=1000
     sens "stop-and-go, accelerometer 1000 ug/rtHz" stop-and-go sensors.acc_noise_ug_rthz=1000
     sens "urban, INS-grade IMU (30 ug/rtHz, gyro 0.003 deg/s/rtHz)" urban \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005
+        "${ins[@]}"
     sens "stop-and-go, INS-grade IMU (30 ug/rtHz, gyro 0.003 deg/s/rtHz)" stop-and-go \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005
+        "${ins[@]}"
     sens "urban, 5 % of IMU frames lost" urban sensors.imu_drop_prob=0.05
     sens "urban, soft suspension" urban "realistic.pitch_freq_hz=[1.0, 1.1]" \
         "realistic.pitch_damping=[0.15, 0.25]" "realistic.pitch_per_accel_deg=[0.3, 0.45]"
@@ -66,12 +67,10 @@ sens() {
     sens "hilly, a body that squats half as much as it dives" hilly \
         "realistic.squat_share=[0.5, 0.5]"
     sens "hilly, INS-grade IMU, a body that squats half as much as it dives" hilly \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         "realistic.squat_share=[0.5, 0.5]"
     sens "urban, INS-grade IMU, a body that squats half as much as it dives" urban \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         "realistic.squat_share=[0.5, 0.5]"
     sens "urban, stiff suspension (pitch 1.6-1.9 Hz, damping 0.3-0.5, 0.08-0.15 deg per m/s^2)" \
         urban "realistic.pitch_freq_hz=[1.6, 1.9]" "realistic.pitch_damping=[0.3, 0.5]" \
@@ -87,8 +86,7 @@ sens() {
     sens "urban, body sinking 2 mm per m/s^2 of force as it pitches" urban \
         "realistic.heave_per_accel_mm=[-2.0, -2.0]"
     sens "urban, INS-grade IMU, body rising 2 mm per m/s^2 of force" urban \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         "realistic.heave_per_accel_mm=[2.0, 2.0]"
     sens "hilly, a body that stands level on every grade (no pitch from the grade's pull)" hilly \
         realistic.pitch_from_grade=false
@@ -97,23 +95,19 @@ sens() {
     sens "stop-and-go, every drive-off gentle (0.3-0.6 m/s^2)" stop-and-go \
         realistic.gentle_start_share=1.0
     sens "urban, INS-grade IMU and every drive-off gentle" urban \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         realistic.gentle_start_share=1.0
     sens "urban, engine idling (0.2 m/s^2 rms at 25 Hz)" urban realistic.idle_vibration_mps2=0.2
     sens "stop-and-go, engine idling (0.2 m/s^2 rms at 25 Hz)" stop-and-go \
         realistic.idle_vibration_mps2=0.2
     sens "urban, INS-grade IMU and an idling engine (0.2 m/s^2 at 25 Hz)" urban \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         realistic.idle_vibration_mps2=0.2
     sens "stop-and-go, INS-grade IMU and an idling engine (0.2 m/s^2 at 25 Hz)" stop-and-go \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         realistic.idle_vibration_mps2=0.2
     sens "urban, INS-grade IMU and an idling engine, no IMU frame lost" urban \
-        sensors.acc_noise_ug_rthz=30 sensors.acc_bias_walk_mps2_rts=0.0001 \
-        sensors.gyro_noise_dps_rthz=0.003 sensors.gyro_bias_walk_dps_rts=0.0005 \
+        "${ins[@]}" \
         realistic.idle_vibration_mps2=0.2 sensors.imu_drop_prob=0
     sens "stop-and-go, a noise-free IMU (biases kept, no drift)" stop-and-go \
         sensors.acc_noise_ug_rthz=0 sensors.acc_bias_walk_mps2_rts=0 \
