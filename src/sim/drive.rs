@@ -178,15 +178,6 @@ pub fn simulate(sc: &Scenario) -> Drive {
     let segs = &sc.speed.segments;
     let (mut seg, mut seg_t0) = (0usize, 0.0f64);
     let (mut v, mut s) = (0.0f64, 0.0f64);
-    // Whether each segment, as planned, ends with the car at rest: a brake segment that
-    // does leaves it there with its speed exactly zero (the brakes hold it).
-    let ends_at_rest: Vec<bool> = segs
-        .iter()
-        .scan(0.0f64, |v_end, x| {
-            *v_end = (*v_end + x.accel_mps2 * x.duration_s).max(0.0);
-            Some(x.accel_mps2 < 0.0 && *v_end < 1e-6)
-        })
-        .collect();
     // Suspension state (rad, rad/s). The car stands where the drive begins: the body
     // has settled on the grade under its axles.
     let force0 = if veh.pitch_from_grade {
@@ -433,12 +424,7 @@ pub fn simulate(sc: &Scenario) -> Drive {
             }
             _ => a_long,
         };
-        let stops = matches!(end, Some(end) if t + h > end) && ends_at_rest[seg];
-        let v_next = if stops {
-            0.0
-        } else {
-            (v + a_step * h).max(0.0)
-        };
+        let v_next = (v + a_step * h).max(0.0);
         s += 0.5 * (v + v_next) * h;
         v = v_next;
         // The drivetrain pushes while the car pulls away or drives on; at rest the
@@ -600,38 +586,6 @@ mod tests {
         };
         assert!((half(10.0) - 0.244).abs() < 0.005);
         assert!((half(-10.0) + 0.244).abs() < 0.005);
-    }
-
-    /// Braking to rest on a grade leaves the car at rest, speed exactly zero, so that its
-    /// brakes hold the body there as they do one that started at rest: with or without
-    /// the acceleration ramping between segments.
-    #[test]
-    fn a_car_that_brakes_to_rest_on_a_grade_stands_still_and_is_held_by_its_brakes() {
-        use crate::sim::scenario::{Road, Vehicle};
-        for accel_ramp_s in [0.0, 0.4] {
-            for grade_pct in [10.0, -10.0] {
-                let vehicle = Vehicle {
-                    pitch_per_accel_deg: 0.25,
-                    squat_share: 0.5,
-                    accel_ramp_s,
-                    ..Vehicle::default()
-                };
-                let speed = SpeedProfile::default()
-                    .hold(1.0)
-                    .accel(1.3, 5.0)
-                    .hold(2.0)
-                    .accel(-0.9, 6.5 / 0.9)
-                    .hold(8.0);
-                let road = Road::constant(f64::atan2(grade_pct, 100.0).to_degrees());
-                let d = ideal_drive(speed, road, vehicle);
-                let mut rest = d.truth.iter().filter(|x| x.t_s > 16.5 && x.t_s < 23.0);
-                assert!(rest.all(|x| x.v_mps == 0.0), "ramp {accel_ramp_s} s");
-                // As braking: 0.25 deg per m/s^2 of g sin(grade), the dive's, not half.
-                let held = d.truth_at(22.0).suspension_deg;
-                let want = 0.244 * grade_pct.signum();
-                assert!((held - want).abs() < 0.005, "{held} on {grade_pct} %");
-            }
-        }
     }
 
     /// Pulling away the body squats by `squat_share` of what it dives braking.
