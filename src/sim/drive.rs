@@ -428,8 +428,10 @@ pub fn simulate(sc: &Scenario) -> Drive {
         s += 0.5 * (v + v_next) * h;
         v = v_next;
         // The drivetrain pushes while the car pulls away or drives on; at rest the
-        // brakes hold it, through the geometry that they brake with.
-        let driven = a_long > 0.0 || v > 0.0;
+        // brakes hold it, through the geometry that they brake with. The split step
+        // where braking ends leaves the speed a rounding residue (up to 2e-5 m/s), so
+        // rest is any speed below `REST_BELOW_MPS`.
+        let driven = a_long > 0.0 || v > REST_BELOW_MPS;
         let target = body_pitch_rad(veh, force_long, driven);
         let beta_dd = wn * wn * (target - beta) - 2.0 * veh.pitch_damping * wn * beta_dot;
         beta_dot += beta_dd * h;
@@ -445,6 +447,10 @@ pub fn simulate(sc: &Scenario) -> Drive {
     }
     Drive { imu, wheels, truth }
 }
+
+/// Below this speed the car is at rest, held by its brakes: far above the integration's
+/// rounding residue, far below any creep or rolling stop (0.05 m/s and up).
+const REST_BELOW_MPS: f64 = 1e-3;
 
 /// The body's steady pitch under a longitudinal force per unit mass, rad: it dives
 /// under braking and squats by `squat_share` of that under a forward force that the
@@ -586,6 +592,38 @@ mod tests {
         };
         assert!((half(10.0) - 0.244).abs() < 0.005);
         assert!((half(-10.0) + 0.244).abs() < 0.005);
+    }
+
+    /// Braking to rest on a grade leaves the car held by its brakes, as one that started
+    /// the drive at rest: the body pitches as it brakes, whatever its squat, with or
+    /// without the acceleration ramping between segments.
+    #[test]
+    fn a_car_that_brakes_to_rest_on_a_grade_is_held_by_its_brakes() {
+        use crate::sim::scenario::{Road, Vehicle};
+        for accel_ramp_s in [0.0, 0.4] {
+            for grade_pct in [10.0, -10.0] {
+                let vehicle = Vehicle {
+                    pitch_per_accel_deg: 0.25,
+                    squat_share: 0.5,
+                    accel_ramp_s,
+                    ..Vehicle::default()
+                };
+                let speed = SpeedProfile::default()
+                    .hold(1.0)
+                    .accel(1.3, 5.0)
+                    .hold(2.0)
+                    .accel(-0.9, 6.5 / 0.9)
+                    .hold(8.0);
+                let road = Road::constant(f64::atan2(grade_pct, 100.0).to_degrees());
+                let d = ideal_drive(speed, road, vehicle);
+                let mut rest = d.truth.iter().filter(|x| x.t_s > 16.5 && x.t_s < 23.0);
+                assert!(rest.all(|x| x.v_mps < 1e-4), "ramp {accel_ramp_s} s");
+                // As braking: 0.25 deg per m/s^2 of g sin(grade), the dive's, not half.
+                let held = d.truth_at(22.0).suspension_deg;
+                let want = 0.244 * grade_pct.signum();
+                assert!((held - want).abs() < 0.005, "{held} on {grade_pct} %");
+            }
+        }
     }
 
     /// Pulling away the body squats by `squat_share` of what it dives braking.
