@@ -408,7 +408,8 @@ pub fn simulate(sc: &Scenario) -> Drive {
         let end = segs.get(seg).map(|x| seg_t0 + x.duration_s);
         let next = segs.get(seg + 1);
         let a_step = match (end, next) {
-            // Braking ends at rest inside this step: exact split, never a creep.
+            // Braking ends at rest inside this step: exact split, no creep but a rounding
+            // residue (`REST_BELOW_MPS`).
             (Some(end), Some(next)) if t + h > end => {
                 let before = end - t;
                 let after = if veh.accel_ramp_s > 0.0 && !(a_long < 0.0 && next.accel_mps2 == 0.0) {
