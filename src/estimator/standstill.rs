@@ -126,6 +126,27 @@ pub(super) struct PendingBlock {
     /// Time of its first sample, s.
     pub(super) t0_s: f64,
     pub(super) gyro: GyroSum,
+    pub(super) still: StillBlocks,
+}
+
+/// The blocks of a segment that stood still, for the accelerometer bias: their force
+/// sum and samples. A door shock starting just as the stillness ends leaves a block of
+/// a few samples most of which swung, 0.1 m/s^2 off gravity in magnitude; joined to a
+/// one-second reference it moved the reference's magnitude by 12 mm/s^2, which the stop
+/// filter read as an x bias of -0.17 m/s^2 on a perfect IMU (stop-and-go 304 5P). The
+/// reference keeps such a block (its pitch is as good as the others'); the bias does
+/// not.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct StillBlocks {
+    pub(super) sum: Vector3<f64>,
+    pub(super) n: u64,
+}
+
+impl StillBlocks {
+    pub(super) fn add(&mut self, other: Self) {
+        self.sum += other.sum;
+        self.n += other.n;
+    }
 }
 
 /// Sum of gyro readings over quiet samples, rad/s, and their count: their mean is the
@@ -162,6 +183,8 @@ pub(super) struct Standstill {
     pub(super) seg_last_s: f64,
     /// Gyro readings of the segment's blocks (all their quiet samples).
     pub(super) seg_gyro: GyroSum,
+    /// The segment's blocks that stood still, for the accelerometer bias.
+    pub(super) seg_still: StillBlocks,
     pub(super) block_sum: Vector3<f64>,
     pub(super) block_n: u64,
     /// Sum and count of the block's samples whose lever-arm motion stayed below
@@ -285,13 +308,15 @@ impl Standstill {
     /// Force sum and sample count the current block stands for: its calm samples when
     /// at least a quarter of them (and `min_n`) are calm, else all.
     pub(super) fn block_force(&self, min_n: u64) -> (Vector3<f64>, u64) {
-        if self.block_calm_n >= min_n
-            && self.block_calm_n as f64 >= CALM_SHARE_MIN * self.block_n as f64
-        {
+        if self.block_is_calm(min_n) {
             (self.block_calm_sum, self.block_calm_n)
         } else {
             (self.block_sum, self.block_n)
         }
+    }
+    fn block_is_calm(&self, min_n: u64) -> bool {
+        self.block_calm_n >= min_n
+            && self.block_calm_n as f64 >= CALM_SHARE_MIN * self.block_n as f64
     }
     pub(super) fn clear_block(&mut self) {
         self.block_sum = Vector3::zeros();
@@ -313,7 +338,9 @@ impl Standstill {
         first_s: f64,
         last_s: f64,
         gyro: GyroSum,
+        still: StillBlocks,
     ) {
+        self.seg_still = still;
         self.seg_sum = sum;
         self.seg_n = n;
         self.seg_gyro = gyro;
@@ -561,6 +588,7 @@ impl Estimator {
             seg_sum: Vector3::zeros(),
             seg_n: 0,
             seg_gyro: GyroSum::default(),
+            seg_still: StillBlocks::default(),
             seg_first_s: t_now,
             seg_last_s: t_now,
             block_sum: Vector3::zeros(),
@@ -700,6 +728,7 @@ impl Estimator {
         let thr = self.cfg.load_change_deg.to_radians();
         let min_n = self.min_settled();
         let swing_gate = self.cfg.reference_swing_gate_dps2.to_radians() * self.gyro_gate_scale();
+        let gate_works = self.calm_share >= CALM_SHARE_MIN;
         let Some(st) = self.standstill.as_mut() else {
             return;
         };
@@ -707,6 +736,16 @@ impl Estimator {
             return;
         }
         let (block, block_n) = st.block_force(min_n);
+        // A block whose samples mostly swung, while the gate sees calm samples at other
+        // times, stands for the reference but teaches no bias (`StillBlocks`).
+        let still = if st.block_is_calm(min_n) || !gate_works {
+            StillBlocks {
+                sum: block,
+                n: block_n,
+            }
+        } else {
+            StillBlocks::default()
+        };
         let (block_t0, block_last) = (st.block_t0_s, st.block_last_s);
         let gyro = st.block_gyro();
         let swinging = st.block_alpha_max > swing_gate;
@@ -721,7 +760,7 @@ impl Estimator {
             if swinging && block_t0 - st.t_rest_s < REFERENCE_SWING_SPAN_S {
                 return;
             }
-            st.restart_segment(block, block_n, block_t0, block_last, gyro);
+            st.restart_segment(block, block_n, block_t0, block_last, gyro, still);
             self.teach_bias_block(&gyro_mean, gyro_n, early);
             return;
         }
@@ -733,6 +772,7 @@ impl Estimator {
             st.seg_sum += block;
             st.seg_n += block_n;
             st.seg_gyro.add(gyro);
+            st.seg_still.add(still);
             st.seg_last_s = block_last;
             st.pending = None;
             let joined = *st;
@@ -746,6 +786,8 @@ impl Estimator {
                     .is_some_and(|pp| (pp - bp).abs() <= thr / 2.0) =>
             {
                 let (psum, pn, pt0) = (p.sum, p.n, p.t0_s);
+                let mut pair = p.still;
+                pair.add(still);
                 // Two blocks agree on a new pitch. A load change turns the body, and the
                 // gyro sees the same turn; a reference taken from a few samples while the
                 // body still swung (its lever-arm motion left in the force) does not.
@@ -778,7 +820,7 @@ impl Estimator {
                 if gyro_delta.is_some_and(|g| !turn_matches(sf_delta, g, sf_delta))
                     || delta.abs() <= thr
                 {
-                    st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
+                    st.restart_segment(psum + block, pn + block_n, pt0, block_last, after, pair);
                     return;
                 }
                 if !st.settled_done {
@@ -788,7 +830,7 @@ impl Estimator {
                 let Some(st) = self.standstill.as_mut() else {
                     return;
                 };
-                st.restart_segment(psum + block, pn + block_n, pt0, block_last, after);
+                st.restart_segment(psum + block, pn + block_n, pt0, block_last, after, pair);
                 self.apply_load_change(delta, new_pitch, t_s, emit);
             }
             _ => {
@@ -811,7 +853,7 @@ impl Estimator {
                         let Some(st) = self.standstill.as_mut() else {
                             return;
                         };
-                        st.restart_segment(block, block_n, block_t0, block_last, gyro);
+                        st.restart_segment(block, block_n, block_t0, block_last, gyro, still);
                         st.pending = None;
                         return;
                     }
@@ -824,6 +866,7 @@ impl Estimator {
                     n: block_n,
                     t0_s: block_t0,
                     gyro,
+                    still,
                 });
             }
         }
@@ -1304,8 +1347,21 @@ impl Estimator {
         let floor = self.index_at(st.t_rest_s);
         let settled = st.seg_n >= self.min_settled();
         let bias_before = self.stop_bias;
-        if settled {
-            self.update_stop_bias(t_now, &st.mean(), st.seg_n);
+        // The stop teaches the accelerometer bias only from a reference that stood
+        // still. One shorter than a period of the body's pitch mode holds what is left
+        // of the rocking (its magnitude off gravity by 10 mm/s^2 rms, 20 with a gyro
+        // three times noisier, against 1 from one to four seconds). One whose body was
+        // turning as the car pulled away (a load coming in that the live pitch showed)
+        // may hold the start of the turn: a load's ramp moves a headlamp 2 m ahead of
+        // the pitch centre by 0.02 m/s^2 vertically, which a gyro too noisy to see it
+        // leaves in.
+        let still = st.seg_still;
+        let bias_stop = settled
+            && still.n >= self.min_settled()
+            && st.settled_s() >= THIN_REF_S
+            && !live_active;
+        if bias_stop {
+            self.update_stop_bias(t_now, &(still.sum / still.n as f64), still.n);
             self.follow_stop_bias(t_now, emit);
         }
         let g_mean = if settled { st.mean() } else { st.f_begin };
