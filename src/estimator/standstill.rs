@@ -314,6 +314,8 @@ impl Standstill {
             (self.block_sum, self.block_n)
         }
     }
+    /// At least `min_n` of the block's samples, and a quarter of them, passed the
+    /// lever-arm gate.
     fn block_is_calm(&self, min_n: u64) -> bool {
         self.block_calm_n >= min_n
             && self.block_calm_n as f64 >= CALM_SHARE_MIN * self.block_n as f64
