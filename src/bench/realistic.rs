@@ -25,6 +25,14 @@ pub struct RealisticSpec {
     /// and the creep's peak speed, m/s; it moves the car well under a window.
     pub creep_share: f64,
     pub creep_peak_mps: [f64; 2],
+    /// Share of full stops at which the driver eases off the brake: the last
+    /// `soft_stop_s` before rest are braked at only `soft_stop_mps2` (most drivers do
+    /// this to spare the passengers the jerk of the stop; a car with one-pedal driving
+    /// always does). The car then comes to rest from a walking pace, below the wheels'
+    /// dead zone, with little force left to end and little swing after it.
+    pub soft_stop_share: f64,
+    pub soft_stop_mps2: [f64; 2],
+    pub soft_stop_s: [f64; 2],
     /// Share of stops with a door or boarding shock; amplitude (deg), frequency (Hz) and
     /// decay time constant (s) of the body-pitch oscillation.
     pub door_shock_share: f64,
@@ -78,6 +86,8 @@ pub struct RealisticSpec {
     /// Cross slope of the lane, percent, positive falling to the right (the right lane of
     /// a crowned road, 1.5-2.5 % on most; 0, flat, by default).
     pub cross_slope_pct: f64,
+    /// Distance between the axles, m (the estimator is configured for 2.7 unless told).
+    pub wheelbase_m: f64,
     pub heave_freq_hz: [f64; 2],
     pub heave_damping: [f64; 2],
     /// Body heave per m/s^2 of longitudinal force, mm (see `Vehicle::heave_per_accel_mm`).
@@ -98,6 +108,9 @@ impl Default for RealisticSpec {
             short_hold_s: [1.0, 2.0],
             creep_share: 0.0,
             creep_peak_mps: [0.05, 0.3],
+            soft_stop_share: 0.0,
+            soft_stop_mps2: [0.2, 0.5],
+            soft_stop_s: [0.6, 1.2],
             door_shock_share: 0.33,
             door_shock_deg: [0.1, 0.2],
             door_shock_hz: [5.0, 8.0],
@@ -127,6 +140,7 @@ impl Default for RealisticSpec {
             idle_vibration_hz: 25.0,
             road_roughness_1e6_m3: 64.0,
             cross_slope_pct: 0.0,
+            wheelbase_m: 2.7,
             heave_freq_hz: [1.1, 1.3],
             heave_damping: [0.25, 0.4],
             heave_per_accel_mm: [0.0, 0.0],
@@ -160,6 +174,20 @@ impl RealisticSpec {
             "give -10..10 % (a crowned road's lanes fall 1.5-2.5 % to the side)",
         )?;
         in_range(
+            "realistic.soft_stop_share",
+            self.soft_stop_share,
+            0.0,
+            1.0,
+            "give a share of the full stops, 0-1",
+        )?;
+        in_range(
+            "realistic.wheelbase_m",
+            self.wheelbase_m,
+            1.5,
+            5.0,
+            "give 1.5-5 m (a passenger car's axles are 2.4-3.1 m apart)",
+        )?;
+        in_range(
             "realistic.idle_vibration_hz",
             self.idle_vibration_hz,
             5.0,
@@ -173,6 +201,20 @@ impl RealisticSpec {
                 Err(anyhow::anyhow!("realistic.{key} = [{lo}, {hi}]: {hint}"))
             }
         };
+        range(
+            "soft_stop_mps2",
+            self.soft_stop_mps2,
+            0.0,
+            3.0,
+            "give [min, max] above 0 m/s^2; a driver easing off the brake ends at 0.2-0.5",
+        )?;
+        range(
+            "soft_stop_s",
+            self.soft_stop_s,
+            0.0,
+            5.0,
+            "give [min, max] above 0 s; a driver eases off over the last 0.5-1.5 s",
+        )?;
         range(
             "heave_freq_hz",
             self.heave_freq_hz,
@@ -227,6 +269,7 @@ fn pick(g: &mut Gauss, r: [f64; 2]) -> f64 {
 /// Build one load case of a realistic drive.
 pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario, StopPlan) {
     let mut g = Gauss::new(spec.seed);
+    let mut gs = Gauss::new(spec.seed ^ 0x0073_6f66_7473);
     let sym = |g: &mut Gauss, m: f64| (2.0 * g.uniform() - 1.0) * m;
     let mut speed = SpeedProfile::default();
     let mut plan = StopPlan::default();
@@ -334,15 +377,31 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
         speed = speed.accel(accel, ta);
         let accel_m = (v_top * v_top - v_min * v_min) / (2.0 * accel);
         let v_end = kinds[k + 1].1;
-        let brake_m = (v_top * v_top - v_end * v_end) / (2.0 * brake);
+        // An eased stop: braked at `brake` down to the speed the gentle end starts
+        // from. Drawn apart, so that the drives without it stay as they were.
+        let ease = (kinds[k + 1].0 == StopKind::Full && gs.uniform() < r.soft_stop_share)
+            .then(|| {
+                let a = pick(&mut gs, r.soft_stop_mps2).min(brake);
+                (a, pick(&mut gs, r.soft_stop_s))
+            })
+            .filter(|(a, te)| a * te < v_top);
+        let (v_eased, ease_m) = ease.map_or((v_end, 0.0), |(a, te)| (a * te, 0.5 * a * te * te));
+        let brake_m = (v_top * v_top - v_eased * v_eased) / (2.0 * brake) + ease_m;
         let cruise_m = leg_m
             .map_or(v_top * 5.0, |l| l - accel_m - brake_m)
             .max(20.0);
         speed = speed.hold(cruise_m / v_top);
-        let tb = (v_top - v_end) / brake;
+        let tb = (v_top - v_eased) / brake;
         speed = speed.accel(-brake, tb);
+        let te = match ease {
+            Some((a, te)) => {
+                speed = speed.accel(-a, te);
+                te
+            }
+            None => 0.0,
+        };
         s += accel_m + cruise_m + brake_m;
-        t += ta + cruise_m / v_top + tb;
+        t += ta + cruise_m / v_top + tb + te;
     }
 
     let road = hilly_road(spec, r, &mut g, s + 100.0);
@@ -414,6 +473,7 @@ pub fn build(spec: &DriveSpec, r: &RealisticSpec, load_idx: usize) -> (Scenario,
             sym(&mut g, r.imu_mount_max_deg[2]),
         ],
         accel_ramp_s: r.accel_ramp_s,
+        wheelbase_m: r.wheelbase_m,
         ..Vehicle::default()
     };
     let base = spec.sensors.clone().unwrap_or_default();
@@ -514,6 +574,63 @@ mod tests {
                 .filter(|&(i, _)| i + 1 != k)
                 .all(|(_, s)| s.1 - s.0 <= r.short_hold_s[1] + 1e-9);
             assert!(short, "seed {seed}: {:?}", plan.stops);
+        }
+    }
+
+    /// An eased stop ends at the plan's time and place, braked at the gentle rate over
+    /// its last part, and the car stands still through the hold.
+    #[test]
+    fn an_eased_stop_comes_to_rest_from_a_walking_pace_where_planned() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenarios/realistic/urban.toml"
+        ))
+        .unwrap();
+        let mut spec = DriveSpec::parse(&text).unwrap();
+        spec.stops = 4;
+        let r = RealisticSpec {
+            soft_stop_share: 1.0,
+            rolling_stop_share: 0.0,
+            ..RealisticSpec::default()
+        };
+        let hard = RealisticSpec {
+            rolling_stop_share: 0.0,
+            ..RealisticSpec::default()
+        };
+        for seed in 1..=4 {
+            spec.seed = seed;
+            let (sc, plan) = build(&spec, &r, 0);
+            let (hard_sc, hard_plan) = build(&spec, &hard, 0);
+            let drive = simulate(&sc);
+            let hard_drive = simulate(&hard_sc);
+            for (i, &(t_stop, t_go, ..)) in plan.stops.iter().enumerate().skip(1) {
+                // Half a second before rest the car still moves, slower than the
+                // wheels' dead zone, and brakes at no more than the gentle rate.
+                let before = drive.truth_at(t_stop - 0.5);
+                assert!(
+                    before.v_mps > 0.5 * 0.5 * r.soft_stop_mps2[0]
+                        && before.v_mps < 0.5 * r.soft_stop_mps2[1] + 0.02,
+                    "seed {seed} stop {i}: {} m/s half a second before rest",
+                    before.v_mps
+                );
+                let held = drive
+                    .truth
+                    .iter()
+                    .filter(|x| x.t_s > t_stop + 0.05 && x.t_s < t_go - 0.3);
+                assert!(held.clone().all(|x| x.v_mps < 1e-3), "seed {seed} stop {i}");
+                // The same drive without the easing stops where this one does, later (the
+                // ramp into the gentle end moves each stop by 1-2 cm).
+                let hard_stop = hard_plan.stops[i].0;
+                assert!(t_stop > hard_stop, "seed {seed} stop {i}");
+                let (at, hard_at) = (
+                    drive.truth_at(t_stop).s_m,
+                    hard_drive.truth_at(hard_stop).s_m,
+                );
+                assert!(
+                    (at - hard_at).abs() < 0.025 * i as f64,
+                    "seed {seed} stop {i}: {at} m, {hard_at} m"
+                );
+            }
         }
     }
 
