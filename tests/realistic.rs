@@ -2616,3 +2616,74 @@ fn the_stops_teach_no_accelerometer_bias_the_sensors_do_not_have() {
     let bad: Vec<_> = worst.iter().filter(|w| !(w.2 < 0.01)).collect();
     assert!(bad.is_empty(), "learnt x bias above 0.01 m/s^2: {bad:?}");
 }
+
+/// Drivers ease off the brake over the last second before rest: the car comes to rest
+/// from a walking pace, below the wheels' dead zone, braking at 0.2-0.5 m/s^2, which
+/// the IMU alone can take for rest a moment early. The attitude the standstill's motion
+/// tracker starts from was taken over the last half-second and held that braking: the
+/// tracker then saw the car pick up speed at rest, ended the standstill within a second
+/// and never let another begin while the wheels read zero, so the stop was lost and the
+/// load that came in at it too (urban, 4 seeds: 2 of 4 loads before drive-off, mean
+/// error while VALID 0.154 deg against 0.044 with the stops braked to the end).
+#[test]
+fn a_stop_eased_to_rest_below_the_wheels_dead_zone_keeps_its_standstill_and_load() {
+    let r = RealisticSpec {
+        soft_stop_share: 1.0,
+        ..brisk()
+    };
+    let (mut loads, mut applied, mut lost) = (0, 0, Vec::new());
+    for seed in 51..59 {
+        let mut s = spec(seed, 8, r.clone());
+        s.load_change_at_stop = Some(4);
+        let case = &s.cases()[1];
+        let c = check(case, &valid);
+        loads += c.load_changes;
+        applied += c.load_applied;
+        let drive = simulate(&case.scenario);
+        let ev = drive_events(&drive);
+        let plan = case.plan.as_ref().unwrap();
+        for &(t_stop, t_go, kind, _) in &plan.stops[1..] {
+            if kind != StopKind::Full {
+                continue;
+            }
+            // The longest standstill within the stop.
+            let mut begun = None;
+            let mut held = 0.0f64;
+            for e in &ev {
+                match *e {
+                    Event::StandstillStarted { t_s, .. } if t_s > t_stop && t_s < t_go => {
+                        begun = Some(t_s)
+                    }
+                    Event::StandstillEnded { t_s, .. } => {
+                        if let Some(t0) = begun.take() {
+                            held = held.max(t_s - t0);
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            // The drive ends at rest: its last standstill is still open.
+            if let Some(t0) = begun {
+                held = held.max(t_go - t0);
+            }
+            eprintln!(
+                "seed {seed} stop at {t_stop:.1}: held {:.1} s of {:.1}",
+                held,
+                t_go - t_stop
+            );
+            if held < 0.5 * (t_go - t_stop) {
+                lost.push((seed, t_stop));
+            }
+        }
+    }
+    eprintln!("{applied} of {loads} loads applied before drive-off; lost {lost:?}");
+    assert!(
+        lost.is_empty(),
+        "stops without a standstill over half their length: {lost:?}"
+    );
+    assert_eq!(loads, 8);
+    assert!(
+        applied >= 7,
+        "{applied} of {loads} loads applied before drive-off"
+    );
+}

@@ -30,7 +30,7 @@ const KNOCK_QUIET_S: f64 = 0.1;
 /// averaged (noise of one 100 Hz sample is about 0.03 m/s^2; five keep a single
 /// outlier from ending the rest).
 const REST_AVG_S: f64 = 0.05;
-const REST_AVG_MIN: usize = 5;
+pub(super) const REST_AVG_MIN: usize = 5;
 /// Most samples `REST_AVG_S` may span (the buffers that hold them), 200 Hz and more.
 const REST_AVG_MAX: usize = 16;
 

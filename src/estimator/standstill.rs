@@ -3,6 +3,7 @@
 
 use super::attitude::{attitude_from_gravity, pitch_of};
 use super::gravity::pitch_from;
+use super::history::REST_AVG_MIN;
 use super::motion::MotionTracker;
 use super::window::{RejectReason, Step, WindowGeometry};
 use super::{Condition, Estimator, Event, ImuSample};
@@ -45,6 +46,14 @@ const MARK_TILT_DRIFT_MPS2: f64 = 0.03;
 /// with drive-offs of 0.15-0.3 m/s^2) the drift was -0.073..+0.092 m/s^2; of the 23
 /// rolling stops that passed the checks above, 22 drifted by 0.095-0.19 (21 beyond this).
 const REST_DRIFT_MAX_MPS2: f64 = 0.1;
+
+/// A standstill's first reference is the last quarter second; when the rest edge is
+/// nearer than this, s, it is taken from the samples after the edge (less the stop's
+/// jerk, `REST_JERK_S`) alone. A car eased to rest at 0.2-0.5 m/s^2 whose reference held
+/// the last 0.08 s of that braking was 0.5 deg off in pitch, and the motion tracker
+/// anchored there took the stop for a drive-off within half a second.
+const REST_SETTLE_S: f64 = 0.3;
+const REST_JERK_S: f64 = 0.05;
 /// Delays of a wheel reading tried by the drift fit, as shares of the speed's age.
 const DRIFT_DELAY_SHARES: [f64; 4] = [0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0];
 
@@ -494,6 +503,18 @@ impl Estimator {
             .rest_edge(&f_rest, 0)
             .max(first_quiet.saturating_sub(self.samples_in(1.0)))
             .min(n - 1);
+        // A car eased to rest from a walking pace brakes gently until a moment before,
+        // below the wheels' dead zone, and the IMU can be quiet through it: when the
+        // rest edge is less than `REST_SETTLE_S` behind, the reference (and the motion
+        // tracker's anchor) is taken from the samples after it alone.
+        let after_edge = self.index_at(self.hist.get(rest).t_s + REST_JERK_S) + 1;
+        if t_now - self.hist.get(rest).t_s < REST_SETTLE_S && n >= after_edge + REST_AVG_MIN {
+            f_rest = Vector3::zeros();
+            for i in after_edge..n {
+                f_rest += self.hist.get(i).acc();
+            }
+            f_rest /= (n - after_edge) as f64;
+        }
         // At rest the car lost, from the last wheel reading on, just the speed that
         // reading showed. A rolling stop that never reached rest, taken here while it
         // brakes or pulls away steadily, fails this by the speed it still had.
@@ -570,10 +591,13 @@ impl Estimator {
         // samples, turned by the gyro into the body frame there, so that a body still
         // rocking a little does not leave it tilted against the gravity it then sees.
         // The tracker compares raw samples, so the accelerometer bias the reference
-        // took out goes back in.
+        // took out goes back in. Only samples after the braking ended count: a car
+        // eased to rest from a walking pace brakes gently below the wheels' dead zone
+        // until a moment before, and that force is not gravity.
         let i_track = self.index_at(t_track).min(n - 1);
         let derotated = if self.cfg.derotated_motion_anchor {
-            self.derotated_reference(self.index_at(t_now - 0.6).min(i_track), i_track)
+            let from = self.index_at(t_now - 0.6).max(braked).min(i_track);
+            self.derotated_reference(from, i_track)
         } else {
             None
         };
