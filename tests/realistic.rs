@@ -2687,3 +2687,40 @@ fn a_stop_eased_to_rest_below_the_wheels_dead_zone_keeps_its_standstill_and_load
         "{applied} of {loads} loads applied before drive-off"
     );
 }
+
+/// A car that crawls to rest (0.05-0.12 m/s^2 over its last 2-4 s, below the wheels'
+/// dead zone) is still rolling when the IMU turns quiet: the standstill begun then ends
+/// as the car rolls on, and none follows while the wheels read zero. The walk begun at
+/// that false drive-off covered its 3 m on drift while the car stood, and its window
+/// was accepted: 4 of these 8 drives' 108 windows were 1.6-4.4 deg off. A real walk of
+/// 3 m from rest ends faster than any wheel sensor's dead zone, so one that ends with
+/// the wheels never having read a speed is refused.
+#[test]
+fn a_walk_the_wheels_never_saw_move_gives_no_window() {
+    let r = RealisticSpec {
+        soft_stop_share: 1.0,
+        soft_stop_mps2: [0.05, 0.12],
+        soft_stop_s: [2.0, 4.0],
+        ..brisk()
+    };
+    let (mut windows, mut far) = (0, Vec::new());
+    for seed in 51..55 {
+        for load in 0..2 {
+            let s = spec(seed, 8, r.clone());
+            let drive = simulate(&s.cases()[load].scenario);
+            for e in drive_events(&drive) {
+                if let Event::WindowAccepted { window: w, .. } = e {
+                    windows += 1;
+                    let err = w.road_to_body_deg - drive.truth_at(w.t_s).load_pitch_deg;
+                    // Single windows here are 0.2-0.5 deg rms: 1.5 deg is beyond noise.
+                    if err.abs() > 1.5 {
+                        far.push((seed, load, w.t_s, err));
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("{} of {windows} windows beyond 1.5 deg", far.len());
+    assert!(windows >= 40, "{windows} windows");
+    assert!(far.is_empty(), "windows beyond 1.5 deg: {far:.2?}");
+}

@@ -107,10 +107,20 @@ impl Estimator {
         let Some(ctx) = self.fwd_ctx.take() else {
             return;
         };
+        // A walk of `window_distance_m` from rest ends faster than any wheel sensor's
+        // dead zone: one that ends with the wheels still at zero, never having read a
+        // speed since it began, covered its distance on drift while the car stood (a
+        // standstill begun while the car still crawled, and the stop after it lost).
+        let unseen =
+            ctx.speed_mismatch.is_none() && !ctx.speed_checked && self.wheels_zero_since.is_some();
         let r = match (r, ctx.speed_mismatch) {
             (Ok(_), Some((imu_mps, wheel_mps))) => {
                 Err(RejectReason::SpeedMismatch { imu_mps, wheel_mps })
             }
+            (Ok(_), None) if unseen => Err(RejectReason::SpeedMismatch {
+                imu_mps: self.fwd.horizontal_speed_mps(),
+                wheel_mps: 0.0,
+            }),
             (r, _) => r,
         };
         let share = if ctx.reference_settled {
