@@ -112,6 +112,20 @@ sens() {
     sens "stop-and-go, a noise-free IMU (biases kept, no drift)" stop-and-go \
         sensors.acc_noise_ug_rthz=0 sensors.acc_bias_walk_mps2_rts=0 \
         sensors.gyro_noise_dps_rthz=0 sensors.gyro_bias_walk_dps_rts=0
+    sens "urban, every stop eased (0.2-0.5 m/s^2 over its last 0.6-1.2 s)" urban \
+        realistic.soft_stop_share=1.0
+    sens "stop-and-go, every stop eased (0.2-0.5 m/s^2 over its last 0.6-1.2 s)" stop-and-go \
+        realistic.soft_stop_share=1.0
+    sens "urban, INS-grade IMU and every stop eased" urban \
+        "${ins[@]}" \
+        realistic.soft_stop_share=1.0
+    sens "urban, every stop a crawl to rest (0.05-0.12 m/s^2 over its last 2-4 s)" urban \
+        realistic.soft_stop_share=1.0 "realistic.soft_stop_mps2=[0.05, 0.12]" \
+        "realistic.soft_stop_s=[2.0, 4.0]"
+    sens "urban, IMU at the car's centre (an INS), configured at the headlamp" urban \
+        "realistic.lever_arm_m=[0.0, 0.0, 0.4]"
+    sens "hilly, axles 2.4 m apart (configured 2.7)" hilly realistic.wheelbase_m=2.4
+    sens "urban, axles 3.1 m apart (configured 2.7)" urban realistic.wheelbase_m=3.1
 } > "$tmp/sens"
 run bench accuracy --ablation --scenarios scenarios/realistic/*.toml --seeds 4 > "$tmp/ablreal"
 
